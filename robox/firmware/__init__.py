@@ -1,0 +1,1 @@
+"""The Robox firmware model: one module per firmware object."""

@@ -1,0 +1,1 @@
+"""Simulated peripherals the firmware model drives, and fault injection."""

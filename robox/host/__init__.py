@@ -1,0 +1,1 @@
+"""Talking to a printer: transports, client API, job sender."""

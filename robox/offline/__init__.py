@@ -1,0 +1,1 @@
+"""Offline tools over image and dump files (card images, EEPROM dumps, firmware images)."""

@@ -1,0 +1,1 @@
+"""The virtual printer: firmware model and simulated hardware, wired together."""
