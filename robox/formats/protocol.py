@@ -1,0 +1,100 @@
+"""Constants of the Robox USB protocol (spec/protocol.md)."""
+
+from enum import IntEnum
+
+#: Number of characters in the ack/errors report 0xe3 (one per error bit).
+ERROR_REPORT_BITS = 64
+
+
+class ErrorBit(IntEnum):
+    """Error bits of the ack/errors report 0xe3; the value is the bit number."""
+
+    SD_CARD = 0
+    CHUNK_SEQUENCE = 1
+    FILE_TOO_LARGE = 2
+    GCODE_LINE_TOO_LONG = 3
+    USB_RX = 4
+    USB_TX = 5
+    BAD_COMMAND = 6
+    HEAD_EEPROM = 7
+    BAD_FIRMWARE_FILE = 8
+    FLASH_CHECKSUM = 9
+    GCODE_BUFFER_OVERRUN = 10
+    FILE_READ_CLOBBERED = 11
+    MAX_GANTRY_ADJUSTMENT = 12
+    REEL0_EEPROM = 13
+    E_FILAMENT_SLIP = 14
+    D_FILAMENT_SLIP = 15
+    NOZZLE_FLUSH_NEEDED = 16
+    Z_TOP_SWITCH = 17
+    B_STUCK = 18
+    REEL1_EEPROM = 19
+    HEAD_POWER_EEPROM = 20
+    HEAD_POWER_OVERTEMP = 21
+    BED_THERMISTOR = 22
+    NOZZLE0_THERMISTOR = 23
+    NOZZLE1_THERMISTOR = 24
+    B_POSITION_LOST = 25
+    E_LOAD_SLIP = 26
+    D_LOAD_SLIP = 27
+    E_UNLOAD_SLIP = 28
+    D_UNLOAD_SLIP = 29
+    POWEROFF_WHILST_HOT = 30
+    E_NO_FILAMENT = 31
+    D_NO_FILAMENT = 32
+    B_POSITION_WARNING = 33
+    HEAD_SHORTED = 34
+    X_DRIVER = 35
+    Y_DRIVER = 36
+    ZA_DRIVER = 37
+    ZB_DRIVER = 38
+    E_DRIVER = 39
+    D_DRIVER = 40
+    BED_TEMPERATURE_DROOP = 41
+
+
+#: Words a person reads for each error bit.
+ERROR_TEXT = {
+    ErrorBit.SD_CARD: "SD card error",
+    ErrorBit.CHUNK_SEQUENCE: "file chunk out of sequence",
+    ErrorBit.FILE_TOO_LARGE: "file too large for the SD card",
+    ErrorBit.GCODE_LINE_TOO_LONG: "G-code line too long",
+    ErrorBit.USB_RX: "USB receive error",
+    ErrorBit.USB_TX: "USB transmit error (reply clobbered)",
+    ErrorBit.BAD_COMMAND: "unknown command",
+    ErrorBit.HEAD_EEPROM: "head EEPROM not valid",
+    ErrorBit.BAD_FIRMWARE_FILE: "bad firmware file",
+    ErrorBit.FLASH_CHECKSUM: "flash checksum error",
+    ErrorBit.GCODE_BUFFER_OVERRUN: "G-code buffer overrun",
+    ErrorBit.FILE_READ_CLOBBERED: "file being read was overwritten",
+    ErrorBit.MAX_GANTRY_ADJUSTMENT: "maximum gantry adjustment exceeded",
+    ErrorBit.REEL0_EEPROM: "reel 0 EEPROM not valid",
+    ErrorBit.E_FILAMENT_SLIP: "E filament slip",
+    ErrorBit.D_FILAMENT_SLIP: "D filament slip",
+    ErrorBit.NOZZLE_FLUSH_NEEDED: "nozzle flush needed",
+    ErrorBit.Z_TOP_SWITCH: "Z top switch",
+    ErrorBit.B_STUCK: "B axis stuck",
+    ErrorBit.REEL1_EEPROM: "reel 1 EEPROM not valid",
+    ErrorBit.HEAD_POWER_EEPROM: "head power off: EEPROM",
+    ErrorBit.HEAD_POWER_OVERTEMP: "head power off: over temperature",
+    ErrorBit.BED_THERMISTOR: "bed thermistor fault",
+    ErrorBit.NOZZLE0_THERMISTOR: "nozzle 0 thermistor fault",
+    ErrorBit.NOZZLE1_THERMISTOR: "nozzle 1 thermistor fault",
+    ErrorBit.B_POSITION_LOST: "B position lost",
+    ErrorBit.E_LOAD_SLIP: "E filament slipped while loading",
+    ErrorBit.D_LOAD_SLIP: "D filament slipped while loading",
+    ErrorBit.E_UNLOAD_SLIP: "E filament slipped while unloading",
+    ErrorBit.D_UNLOAD_SLIP: "D filament slipped while unloading",
+    ErrorBit.POWEROFF_WHILST_HOT: "powered off whilst hot",
+    ErrorBit.E_NO_FILAMENT: "no E filament",
+    ErrorBit.D_NO_FILAMENT: "no D filament",
+    ErrorBit.B_POSITION_WARNING: "B position warning",
+    ErrorBit.HEAD_SHORTED: "head shorted",
+    ErrorBit.X_DRIVER: "X driver fault",
+    ErrorBit.Y_DRIVER: "Y driver fault",
+    ErrorBit.ZA_DRIVER: "ZA driver fault",
+    ErrorBit.ZB_DRIVER: "ZB driver fault",
+    ErrorBit.E_DRIVER: "E driver fault",
+    ErrorBit.D_DRIVER: "D driver fault",
+    ErrorBit.BED_TEMPERATURE_DROOP: "bed temperature droop",
+}

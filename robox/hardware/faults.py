@@ -1,0 +1,62 @@
+"""Fault injection: one plan per device, consulted by the simulated hardware only.
+
+Firmware objects never special-case faults; they see what real hardware would
+show them: a write that never returns (power cut), a block half written (torn),
+a read that fails, a card that is gone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Tear:
+    """How a torn write lands: a prefix of the new bytes, or a seeded byte mix."""
+
+    prefix: int | None = None
+    seed: int | None = None
+
+    def apply(self, old: bytes, new: bytes) -> bytes:
+        if self.prefix is not None:
+            return new[: self.prefix] + old[self.prefix :]
+        rng = np.random.default_rng(self.seed)
+        take_new = rng.integers(0, 2, len(new), dtype=np.uint8).astype(bool)
+        mixed = np.where(take_new, np.frombuffer(new, np.uint8), np.frombuffer(old, np.uint8))
+        return mixed.tobytes()
+
+    def describe(self) -> str:
+        return f"prefix={self.prefix}" if self.prefix is not None else f"mix={self.seed}"
+
+
+@dataclass
+class FaultPlan:
+    """Faults scheduled by ordinal (1-based) of the device's writes and reads.
+
+    - `cut_after_write`: power fails right after that write has landed.
+    - `tear_write` with `tear`: that write lands torn, then power fails.
+    - `failing_reads`: reads (by ordinal) that fail; schedule two consecutive
+      ordinals for a read that also fails its retry.
+    - `remove_before_access`: the card is pulled out just before that access
+      (reads and writes counted together).
+    """
+
+    cut_after_write: int | None = None
+    tear_write: int | None = None
+    tear: Tear = field(default_factory=Tear)
+    failing_reads: set[int] = field(default_factory=set)
+    remove_before_access: int | None = None
+
+    def describe(self) -> str:
+        parts = []
+        if self.cut_after_write is not None:
+            parts.append(f"cut_after_write={self.cut_after_write}")
+        if self.tear_write is not None:
+            parts.append(f"tear_write={self.tear_write}:{self.tear.describe()}")
+        if self.failing_reads:
+            parts.append(f"failing_reads={sorted(self.failing_reads)}")
+        if self.remove_before_access is not None:
+            parts.append(f"remove_before_access={self.remove_before_access}")
+        return ",".join(parts) or "none"
