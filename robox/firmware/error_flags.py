@@ -1,0 +1,31 @@
+"""The latched error flags that the ack/errors report 0xe3 carries."""
+
+from __future__ import annotations
+
+from robox.formats.protocol import ERROR_REPORT_BITS, ERROR_TEXT, ErrorBit
+
+
+class ErrorFlags:
+    """Error bits latch when set and stay set until cleared."""
+
+    def __init__(self) -> None:
+        self.bits = 0
+
+    def set(self, bit: ErrorBit) -> None:
+        self.bits |= 1 << bit
+
+    def is_set(self, bit: ErrorBit) -> bool:
+        return bool(self.bits >> bit & 1)
+
+    def clear(self) -> None:
+        self.bits = 0
+
+    def active(self) -> list[ErrorBit]:
+        return [bit for bit in ErrorBit if self.is_set(bit)]
+
+    def describe(self) -> str:
+        return ", ".join(ERROR_TEXT[bit] for bit in self.active())
+
+    def report(self) -> bytes:
+        """The 64 characters of the 0xe3 report: character i is bit i."""
+        return bytes(0x31 if self.bits >> i & 1 else 0x30 for i in range(ERROR_REPORT_BITS))
