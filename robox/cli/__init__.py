@@ -1,0 +1,24 @@
+"""robox-cli: parse, call, format, exit codes. Nothing else."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from robox import __version__
+from robox.cli.common import RoboxGroup
+from robox.cli.sdcard import sdcard
+
+
+@click.group(cls=RoboxGroup)
+@click.version_option(__version__, prog_name="robox-cli")
+def cli() -> None:
+    """Drive a CEL Robox printer, its virtual twin, and its card, EEPROM and firmware images."""
+
+
+cli.add_command(sdcard)
+
+
+def main() -> None:
+    sys.exit(cli.main(prog_name="robox-cli", standalone_mode=True))

@@ -1,0 +1,38 @@
+"""What every robox-cli command shares: error mapping, exit codes, output."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import click
+
+from robox.errors import RoboxError, UsageError
+
+EXIT_OK = 0
+EXIT_PROBLEM = 1
+EXIT_USAGE = 2
+
+
+def fail(message: str, status: int = EXIT_PROBLEM) -> None:
+    click.echo(f"robox-cli: error: {message}", err=True)
+    sys.exit(status)
+
+
+class RoboxGroup(click.Group):
+    """Turns library errors into one line on stderr and an exit status; never a traceback."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except UsageError as exc:
+            fail(str(exc), EXIT_USAGE)
+        except RoboxError as exc:
+            fail(str(exc))
+        except OSError as exc:
+            where = f"{exc.filename}: " if exc.filename else ""
+            fail(f"{where}{exc.strerror or exc}")
+
+
+def emit_json(data: object) -> None:
+    click.echo(json.dumps(data, indent=2))

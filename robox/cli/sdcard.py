@@ -1,0 +1,140 @@
+"""robox-cli sdcard: card images in the printer's own format."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from robox.cli.common import EXIT_PROBLEM, emit_json
+from robox.errors import UsageError
+from robox.fileio import write_atomically
+from robox.offline import sdcard as images
+
+json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+
+
+@click.group()
+def sdcard() -> None:
+    """Build and inspect SD card images (the printer's circular file system)."""
+
+
+@sdcard.command("format")
+@click.argument("image", type=click.Path(dir_okay=False))
+@click.option("--size", help="Card size: 8MiB, 512KiB, 1GiB or a block count such as 16384b. "
+                             "Required to create an image.")
+@json_option
+def format_cmd(image: str, size: str | None, as_json: bool) -> None:
+    """Create IMAGE as a freshly formatted card, or reformat an existing card image."""
+    blocks = images.parse_size(size) if size is not None else None
+    result = images.format_image(image, blocks)
+    if as_json:
+        emit_json(result)
+    else:
+        verb = "created" if result["created"] else "reformatted"
+        click.echo(f"{image}: {verb}, {result['capacity_blocks']} blocks "
+                   f"({result['capacity_blocks'] // 2} KiB)")
+
+
+@sdcard.command("ls")
+@click.argument("image", type=click.Path(dir_okay=False))
+@json_option
+def ls_cmd(image: str, as_json: bool) -> None:
+    """List the committed files of IMAGE, oldest first."""
+    result = images.list_image(image)
+    if as_json:
+        emit_json(result)
+        return
+    if result["mount"] == "recover":
+        click.echo(f"{image}: block 0 is damaged; listing its recovery copy", err=True)
+    click.echo(f"{'slot':>4}  {'id':<16}  {'job':<3}  {'start':>8}  {'length':>10}")
+    for entry in result["files"]:
+        mark = "  last job" if entry["last_job"] else ""
+        click.echo(f"{entry['slot']:>4}  {entry['id']:<16}  {'yes' if entry['job'] else 'no':<3}"
+                   f"  {entry['start_block']:>8}  {entry['length']:>10}{mark}")
+    click.echo(f"{len(result['files'])} file(s), card of {result['capacity_blocks']} blocks")
+
+
+@sdcard.command("put")
+@click.argument("image", type=click.Path(dir_okay=False))
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--id", "file_id", help="File id (at most 16 ASCII bytes); default: the first "
+                                      "16 characters of FILE's name.")
+@click.option("--job", is_flag=True, help="Mark the file as a print job.")
+@json_option
+def put_cmd(image: str, file: str, file_id: str | None, job: bool, as_json: bool) -> None:
+    """Store FILE on IMAGE as a printer receives it (start, 512-byte chunks, end)."""
+    if file_id is None:
+        file_id = Path(file).name[:16]
+        if not file_id.isascii():
+            raise UsageError(f"{file}: the name is not ASCII; give an id with --id")
+    data = Path(file).read_bytes()
+    result = images.put_file(image, data, file_id, job)
+    if as_json:
+        emit_json(result)
+        return
+    kind = "job" if job else "file"
+    click.echo(f"{image}: stored {kind} {result['id']!r} ({result['length']} bytes)")
+    for dropped in result["dropped"]:
+        click.echo(f"{image}: dropped {dropped!r} to make room", err=True)
+
+
+@sdcard.command("get")
+@click.argument("image", type=click.Path(dir_okay=False))
+@click.argument("file_id", metavar="ID")
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
+              help="Write to this file instead of standard output.")
+def get_cmd(image: str, file_id: str, output: str | None) -> None:
+    """Copy the newest file with id ID from IMAGE, byte-exact."""
+    data = images.get_file(image, file_id)
+    if output is None:
+        sys.stdout.buffer.write(data)
+        sys.stdout.buffer.flush()
+    else:
+        write_atomically(output, data)
+
+
+@sdcard.command("fsck")
+@click.argument("image", type=click.Path(dir_okay=False))
+@json_option
+def fsck_cmd(image: str, as_json: bool) -> None:
+    """Check IMAGE: validity, what a printer would do at mount, extents, recovery copy.
+
+    Exits 1 when a printer would format the card.
+    """
+    report = images.fsck_image(image)
+    if as_json:
+        emit_json(report)
+    else:
+        _print_fsck(report)
+    if not report["printer"]["valid"]:
+        sys.exit(EXIT_PROBLEM)
+
+
+def _print_fsck(report: dict) -> None:
+    d = report["directory"]
+    click.echo(f"image: {report['image']} ({report['capacity_blocks']} blocks)")
+    click.echo(f"directory: capacity {d['capacity']}, next_write_block {d['next_write_block']}, "
+               f"first_file {d['first_file']}, next_file {d['next_file']}, "
+               f"last_job {d['last_job'] if d['last_job'] is not None else 'none'}")
+    printer, project = report["printer"], report["project"]
+    click.echo(f"printer at mount: {printer['action']}"
+               + (f" ({printer['reason']})" if printer["reason"] else ""))
+    click.echo(f"robox at mount: {project['action']}"
+               + (f" ({project['reason']})" if project["reason"] else ""))
+    for repair in project["repairs"]:
+        click.echo(f"  derived: {repair}")
+    for f in report["files"]:
+        wraps = ", wraps" if f["wraps"] else ""
+        job = "job" if f["job"] else "file"
+        last = ", last job" if f["last_job"] else ""
+        click.echo(f"  slot {f['slot']:>2}: {job} {f['id']!r}, {f['length']} bytes, blocks "
+                   f"{f['start_block']}..{f['end_block']}{wraps}{last}")
+    copy = report["recovery_copy"]
+    if copy is None:
+        click.echo("recovery copy: none")
+    else:
+        state = "matches the directory" if copy["matches_directory"] else "differs"
+        click.echo(f"recovery copy: block {copy['block']}, generation {copy['generation']}, "
+                   f"{copy['files']} file(s), usable, {state}")

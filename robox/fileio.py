@@ -1,0 +1,45 @@
+"""Host file helpers: replace a file atomically (temporary sibling, then rename)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import stat
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+
+def _mode_for(target: Path) -> int:
+    try:
+        return stat.S_IMODE(target.stat().st_mode)
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+@contextlib.contextmanager
+def replacing(path: str | os.PathLike) -> Iterator[str]:
+    """Yield a temporary path beside `path`; on success it replaces `path`.
+
+    On any exception the temporary file is removed and `path` is untouched.
+    The new file gets the old file's mode, or the umask's for a new file.
+    """
+    target = Path(path)
+    fd, temp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",
+                                dir=target.parent if str(target.parent) else ".")
+    os.close(fd)
+    try:
+        yield temp
+        os.chmod(temp, _mode_for(target))
+        os.replace(temp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temp)
+        raise
+
+
+def write_atomically(path: str | os.PathLike, data: bytes) -> None:
+    with replacing(path) as temp, open(temp, "wb") as handle:
+        handle.write(data)

@@ -1,0 +1,272 @@
+"""Card images on the host: create, format, list, store, fetch and check.
+
+Everything goes through the firmware's own file-system object or its
+read-only mount plan, so an image is handled exactly as a printer (or the
+virtual printer) would handle the card. Inspection opens the image read-only:
+`ls`, `get` and `fsck` cannot write to it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+from robox.errors import ImageError, NotFoundError, RoboxError, UsageError
+from robox.fileio import replacing
+from robox.firmware.error_flags import ErrorFlags
+from robox.firmware.file_system import FileSystem, MountPlan, plan_mount, scan_copies
+from robox.formats.sdcard import (
+    BLOCK_SIZE,
+    MIN_CARD_BLOCKS,
+    NO_JOB,
+    Directory,
+    card_blocks,
+    following_block,
+    id_text,
+    make_id,
+    trailer_generation,
+)
+from robox.hardware.sdcard import SdCard
+from robox.hardware.storage import FileStorage
+
+_SIZE = re.compile(r"^\s*(\d+)\s*(b|kib|mib|gib)\s*$", re.IGNORECASE)
+_UNITS = {"kib": 1024, "mib": 1024**2, "gib": 1024**3}
+#: The capacity field is 32 bits wide.
+MAX_CARD_BLOCKS = 0xFFFFFFFE
+
+
+def parse_size(text: str) -> int:
+    """Card size in blocks from `8MiB`, `512KiB`, `1GiB` or a block count `16384b`."""
+    match = _SIZE.match(text)
+    if not match:
+        raise UsageError(f"size {text!r} is not like 8MiB, 512KiB or 16384b")
+    number, unit = int(match.group(1)), match.group(2).lower()
+    if unit == "b":
+        blocks = number
+    else:
+        size = number * _UNITS[unit]
+        if size % 1024:
+            raise UsageError(f"size {text!r} is not a whole number of KiB")
+        blocks = card_blocks(size)
+    if blocks % 2:
+        raise UsageError(f"size {text!r} is an odd number of blocks; a card holds whole KiB")
+    if blocks < MIN_CARD_BLOCKS:
+        raise UsageError(f"size {text!r} is {blocks} blocks; a card has at least "
+                         f"{MIN_CARD_BLOCKS} (1 MiB)")
+    if blocks > MAX_CARD_BLOCKS:
+        raise UsageError(f"size {text!r} is too large for the 32-bit capacity field")
+    return blocks
+
+
+def check_image_size(path: str | os.PathLike, size: int) -> int:
+    """Capacity of an image of `size` bytes, or ImageError saying why it is not one."""
+    if size % BLOCK_SIZE:
+        raise ImageError(f"{path}: {size} bytes is not a whole number of 512-byte blocks")
+    capacity = card_blocks(size)
+    if capacity < MIN_CARD_BLOCKS:
+        raise ImageError(f"{path}: {size // BLOCK_SIZE} blocks is too small for a card image "
+                         f"(at least {MIN_CARD_BLOCKS})")
+    return capacity
+
+
+@contextlib.contextmanager
+def open_card(path: str | os.PathLike, writable: bool = False) -> Iterator[SdCard]:
+    """An SdCard over an image file, after checking the file can be one."""
+    try:
+        storage = FileStorage(path, writable=writable)
+    except FileNotFoundError:
+        raise NotFoundError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ImageError(f"{path}: is a directory, not a card image") from None
+    except OSError as exc:
+        raise ImageError(f"{path}: {exc.strerror}") from None
+    try:
+        check_image_size(path, storage.size)
+        yield SdCard(storage)
+        storage.flush()
+    finally:
+        storage.close()
+
+
+def _fs_errors(errors: ErrorFlags, what: str) -> RoboxError:
+    return RoboxError(f"{what}: {errors.describe() or 'failed'}")
+
+
+# ------------------------------------------------------------------ format
+def _looks_like_card(card: SdCard) -> bool:
+    """An existing file may be reformatted only if it already looks like a card image."""
+    block0 = card.read_block(0)
+    directory = Directory.decode(block0)
+    return directory.capacity == card.capacity or not any(block0)
+
+
+def format_image(path: str | os.PathLike, blocks: int | None) -> dict:
+    """Create a formatted image of `blocks` blocks, or reformat an existing image."""
+    target = Path(path)
+    if target.exists():
+        if target.is_dir():
+            raise ImageError(f"{path}: is a directory, not a card image")
+        with open_card(target, writable=True) as card:
+            if blocks is not None and blocks != card.capacity:
+                raise ImageError(f"{path}: the image holds {card.capacity} blocks, not {blocks}; "
+                                 "an image is not resized (remove it to make a new one)")
+            if not _looks_like_card(card):
+                raise ImageError(f"{path}: block 0 is not a card directory; refusing to "
+                                 "overwrite a file that is not a card image")
+            errors = ErrorFlags()
+            if not FileSystem(card, errors).format():
+                raise _fs_errors(errors, f"{path}: format failed")
+            return {"image": str(path), "capacity_blocks": card.capacity, "created": False}
+    if blocks is None:
+        raise UsageError(f"{path} does not exist: give --size to create it")
+    with replacing(target) as temp:
+        with open(temp, "r+b") as handle:
+            handle.truncate(blocks * BLOCK_SIZE)
+        with open_card(temp, writable=True) as card:
+            errors = ErrorFlags()
+            if not FileSystem(card, errors).format():
+                raise _fs_errors(errors, f"{path}: format failed")
+    return {"image": str(path), "capacity_blocks": blocks, "created": True}
+
+
+# ------------------------------------------------------------- inspection
+def _mounted(path: str | os.PathLike, card: SdCard) -> tuple[MountPlan, Directory]:
+    plan = plan_mount(card)
+    if plan.directory is None:
+        reason = plan.project.reason
+        raise ImageError(f"{path}: the directory is not valid ({reason}); "
+                         "a printer would format this card")
+    return plan, plan.directory
+
+
+def _file_entry(d: Directory, index: int, capacity: int) -> dict:
+    slot = d.slots[index]
+    end = following_block(slot.start_block, slot.blocks - 1, capacity) if slot.blocks else None
+    return {
+        "slot": index,
+        "id": id_text(slot.id),
+        "id_hex": slot.id.hex(),
+        "job": slot.job,
+        "start_block": slot.start_block,
+        "length": slot.length,
+        "blocks": slot.blocks,
+        "end_block": end,
+        "wraps": slot.blocks > 0 and slot.start_block + slot.blocks > capacity,
+        "last_job": d.last_job == index,
+    }
+
+
+def list_image(path: str | os.PathLike) -> dict:
+    """Committed files, oldest first, as a printer mounting the card would see them."""
+    with open_card(path) as card:
+        plan, d = _mounted(path, card)
+        return {
+            "image": str(path),
+            "capacity_blocks": card.capacity,
+            "mount": plan.action,
+            "files": [_file_entry(d, i, card.capacity) for i in d.ring()],
+            "last_job": None if d.last_job == NO_JOB else d.last_job,
+        }
+
+
+def _read_slot(card: SdCard, d: Directory, index: int) -> bytes:
+    slot = d.slots[index]
+    parts = []
+    block = slot.start_block
+    remaining = slot.length
+    while remaining > 0:
+        parts.append(card.read_block(block)[: min(BLOCK_SIZE, remaining)])
+        remaining -= BLOCK_SIZE
+        block = following_block(block, 1, card.capacity)
+    return b"".join(parts)
+
+
+def get_file(path: str | os.PathLike, file_id: str) -> bytes:
+    """The newest committed file with that id, byte-exact. Never writes the image."""
+    wanted = make_id(file_id)
+    with open_card(path) as card:
+        _, d = _mounted(path, card)
+        for index in reversed(d.ring()):
+            if d.slots[index].id == wanted:
+                return _read_slot(card, d, index)
+    raise NotFoundError(f"{path}: no file with id {id_text(wanted)!r}")
+
+
+def put_file(path: str | os.PathLike, data: bytes, file_id: str, job: bool) -> dict:
+    """Store `data` as a printer receives a file: start, 512-byte chunks, end."""
+    stored = make_id(file_id)
+    if not data:
+        raise UsageError("the file is empty; a printer does not keep zero-length files")
+    with open_card(path, writable=True) as card:
+        largest = (card.capacity - 2) * BLOCK_SIZE
+        if len(data) > largest:
+            raise ImageError(f"the file is {len(data)} bytes; the largest file this card "
+                             f"holds is {largest} bytes")
+        _mounted(path, card)  # refuse a card a printer would format
+        errors = ErrorFlags()
+        fs = FileSystem(card, errors)
+        before = fs.file_list()
+        chunks = len(data) // BLOCK_SIZE
+        ok = fs.start_write_file(stored, job)
+        for sequence in range(chunks):
+            if not ok:
+                break
+            ok = fs.write_chunk(sequence, data[sequence * BLOCK_SIZE : (sequence + 1) * BLOCK_SIZE])
+        if ok:
+            ok = fs.end_write_file(chunks, data[chunks * BLOCK_SIZE :])
+        if not ok or errors.bits:
+            raise _fs_errors(errors, f"{path}: storing the file failed")
+        after = fs.file_list()
+        dropped = [id_text(i) for i in before if i not in after]
+        return {"image": str(path), "id": id_text(stored), "job": job, "length": len(data),
+                "dropped": dropped}
+
+
+def fsck_image(path: str | os.PathLike) -> dict:
+    """Everything a person needs to judge a card image; never writes it."""
+    with open_card(path) as card:
+        plan = plan_mount(card)
+        d = plan.on_card
+        copies = scan_copies(card)
+        in_use = plan.directory
+        newest = copies[0] if copies else None
+        report = {
+            "image": str(path),
+            "capacity_blocks": card.capacity,
+            "directory": {
+                "capacity": d.capacity,
+                "next_write_block": d.next_write_block,
+                "first_file": d.first_file,
+                "next_file": d.next_file,
+                "last_job": None if d.last_job == NO_JOB else d.last_job,
+                "nonvolatile": list(d.nonvolatile),
+                "generation": trailer_generation(d),
+            },
+            "printer": {
+                "valid": plan.printer.valid,
+                "action": "keep" if plan.printer.valid else "format",
+                "reason": plan.printer.reason or None,
+            },
+            "project": {
+                "valid": plan.project.valid,
+                "action": plan.action,
+                "reason": plan.project.reason or None,
+                "repairs": list(plan.repairs),
+            },
+            "files": [_file_entry(in_use, i, card.capacity) for i in in_use.ring()]
+            if in_use is not None else [],
+            "recovery_copy": None if newest is None else {
+                "block": newest.block,
+                "generation": newest.generation,
+                "usable": True,
+                "files": len(newest.directory.ring()),
+                "matches_directory": in_use is not None
+                and newest.directory.ring() == in_use.ring()
+                and all(newest.directory.slots[i] == in_use.slots[i] for i in in_use.ring()),
+            },
+            "recovery_copies": len(copies),
+        }
+        return report
