@@ -9,10 +9,10 @@ Design (docs/sdcard.md has the full argument):
   lies outside the ring; next_write_block is derived state, recomputed at
   mount from the chain of files. So a torn block 0 always mounts as the state
   before or after its step.
-- Before an update, a *recovery copy* of the new directory is written into a
-  free block (the current write position) with a generation number. Mount
-  falls back to the newest copy only when block 0 is not a valid directory at
-  all (damage beyond a byte mix, such as an erased block).
+- While block 0 is being rewritten, a *recovery copy* of the new directory
+  sits in a free block (the write position), written before and erased after.
+  Mount falls back to it only when block 0 is not a valid directory at all
+  (damage beyond a byte mix, such as a block left erased).
 - Mount follows wrapped files as they really lie, unlike the printer's walk.
 """
 
@@ -228,8 +228,16 @@ class FileSystem:
             return self._format_fresh()
         self._dir = plan.directory
         if plan.action == "recover":
-            self._on_card = None  # block 0 is not a directory: rewrite it whole
-            return self._update([])
+            # Block 0 straight from the copy, which stays valid until block 0 is
+            # whole again: a cut here recovers from the same copy next time.
+            # Everything but the capacity first, then the capacity alone, so a
+            # torn write never leaves a valid-looking mix of copy and debris.
+            restored = stamp_generation(plan.copy.directory, plan.generation)
+            for image in (replace(restored, capacity=0), restored):
+                if not self._write_block(DIRECTORY_BLOCK, image.encode()):
+                    return False
+            self._on_card = restored
+            return self._write_block(plan.copy.block, bytes(BLOCK_SIZE))
         return True
 
     def _with_retry(self, read):
@@ -256,18 +264,19 @@ class FileSystem:
 
     # ------------------------------------------------------- directory writes
     def _update(self, steps: list[Directory]) -> bool:
-        """Write the directory: a recovery copy, then each step, then the in-memory state.
+        """Write the directory: recovery copy, each step, the in-memory state, erase the copy.
 
         Each step must differ from the one before only in a mix-safe way (see the
-        module docstring); the callers build them so.
+        module docstring); the callers build them so. The copy lives only while
+        block 0 is being rewritten, so a copy found on a card is always the
+        update that was in flight, never an old state.
         """
         self._generation += 1
         target = self._dir
-        if self.recovery_copies:
-            where = self._copy_location(target)
-            if where is not None and not self._write_block(
-                    where, encode_copy(stamp_generation(target, self._generation), where)):
-                return False
+        where = self._copy_location(target) if self.recovery_copies else None
+        if where is not None and not self._write_block(
+                where, encode_copy(stamp_generation(target, self._generation), where)):
+            return False
         for step in [*steps, target]:
             stamped = stamp_generation(step, self._generation)
             if self._on_card is not None and stamped == stamp_generation(
@@ -276,7 +285,7 @@ class FileSystem:
             if not self._write_block(DIRECTORY_BLOCK, stamped.encode()):
                 return False
             self._on_card = stamped
-        return True
+        return where is None or self._write_block(where, bytes(BLOCK_SIZE))
 
     def _copy_location(self, target: Directory) -> int | None:
         """The write position, if no committed file (before or after) lies there."""

@@ -14,12 +14,16 @@ import numpy as np
 
 @dataclass
 class Tear:
-    """How a torn write lands: a prefix of the new bytes, or a seeded byte mix."""
+    """How a torn write lands: a prefix of the new bytes, a seeded byte mix, or, beyond
+    the byte-mix model, a block left erased (every byte `fill`)."""
 
     prefix: int | None = None
     seed: int | None = None
+    fill: int | None = None
 
     def apply(self, old: bytes, new: bytes) -> bytes:
+        if self.fill is not None:
+            return bytes([self.fill]) * len(new)
         if self.prefix is not None:
             return new[: self.prefix] + old[self.prefix :]
         rng = np.random.default_rng(self.seed)
@@ -28,6 +32,8 @@ class Tear:
         return mixed.tobytes()
 
     def describe(self) -> str:
+        if self.fill is not None:
+            return f"fill={self.fill:#04x}"
         return f"prefix={self.prefix}" if self.prefix is not None else f"mix={self.seed}"
 
 
