@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import pytest
-
-from robox.firmware.error_flags import ErrorFlags
 from robox.firmware.file_system import FileSystem
-from robox.hardware.sdcard import SdCard
 
 
 def upload(fs: FileSystem, file_id: bytes | str, data: bytes, job: bool = True) -> bool:
@@ -37,18 +33,3 @@ def pattern(size: int, seed: int) -> bytes:
     import numpy as np
 
     return np.random.default_rng(seed).integers(0, 256, size, dtype=np.uint8).tobytes()
-
-
-@pytest.fixture
-def card() -> SdCard:
-    return SdCard.blank(3000)
-
-
-@pytest.fixture
-def errors() -> ErrorFlags:
-    return ErrorFlags()
-
-
-@pytest.fixture
-def fs(card: SdCard, errors: ErrorFlags) -> FileSystem:
-    return FileSystem(card, errors)

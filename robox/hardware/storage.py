@@ -39,30 +39,30 @@ class MemoryStorage:
 
 
 class FileStorage:
-    """A file accessed with pread/pwrite. Opened read-only unless `writable`."""
+    """A file read and written in place, unbuffered. Opened read-only unless `writable`."""
 
     def __init__(self, path: str | os.PathLike, writable: bool = False):
         self.path = os.fspath(path)
         self.writable = writable
-        self._fd = os.open(self.path, os.O_RDWR if writable else os.O_RDONLY)
-        self.size = os.fstat(self._fd).st_size
+        self._file = open(self.path, "r+b" if writable else "rb", buffering=0)  # noqa: SIM115
+        self.size = os.fstat(self._file.fileno()).st_size
 
     def read(self, offset: int, length: int) -> bytes:
-        return os.pread(self._fd, length, offset)
+        self._file.seek(offset)
+        return self._file.read(length)
 
     def write(self, offset: int, data: bytes) -> None:
         if not self.writable:
             raise PermissionError(f"{self.path} is open read-only")
-        os.pwrite(self._fd, data, offset)
+        self._file.seek(offset)
+        self._file.write(data)
 
     def flush(self) -> None:
         if self.writable:
-            os.fsync(self._fd)
+            os.fsync(self._file.fileno())
 
     def close(self) -> None:
-        if self._fd >= 0:
-            os.close(self._fd)
-            self._fd = -1
+        self._file.close()
 
     def __enter__(self) -> FileStorage:
         return self

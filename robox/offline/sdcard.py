@@ -199,7 +199,7 @@ def put_file(path: str | os.PathLike, data: bytes, file_id: str, job: bool) -> d
     """Store `data` as a printer receives a file: start, 512-byte chunks, end."""
     stored = make_id(file_id)
     if not data:
-        raise UsageError("the file is empty; a printer does not keep zero-length files")
+        raise RoboxError("the file is empty; a printer does not keep zero-length files")
     with open_card(path, writable=True) as card:
         largest = (card.capacity - 2) * BLOCK_SIZE
         if len(data) > largest:

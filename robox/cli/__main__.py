@@ -1,0 +1,5 @@
+"""`python -m robox.cli` runs robox-cli."""
+
+from robox.cli import main
+
+main()
