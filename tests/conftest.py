@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+# Loaded before any test activates pyfakefs: robox imports numpy lazily, and numpy
+# cannot be first imported from inside a fake file system.
+import numpy as np
+
 from robox.firmware.file_system import FileSystem
 
 
@@ -30,6 +34,4 @@ def read_back(fs: FileSystem, file_id: bytes | str) -> bytes | None:
 
 def pattern(size: int, seed: int) -> bytes:
     """Deterministic content that differs per seed and per block."""
-    import numpy as np
-
     return np.random.default_rng(seed).integers(0, 256, size, dtype=np.uint8).tobytes()

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import numpy as np
-
 from robox.errors import CardAbsent, CardReadError
 from robox.firmware.error_flags import ErrorFlags
 from robox.formats.protocol import ErrorBit
@@ -98,6 +96,8 @@ def derive(d: Directory, verdict: Verdict, capacity: int) -> tuple[Directory, tu
 
 def scan_copies(card: SdCard) -> list[RecoveryCopy]:
     """Every valid recovery copy on the card, newest first. Reads the whole card."""
+    import numpy as np  # only here: keeps robox-cli start-up fast
+
     found = []
     magic = np.frombuffer(COPY_MAGIC, np.uint8)
     block = FILE_START_BLOCK
@@ -179,7 +179,8 @@ class FileSystem:
         self._generation = 0
         self._insertion = -1
         self._writing = False
-        self._write_pos = 0
+        self._write_pos = 0  # next block of the file being written
+        self._write_length = 0  # its length so far (kept here, as in the printer's RAM)
         self._reader: _Reader | None = None
         self.last_mount: MountPlan | None = None
 
@@ -272,7 +273,7 @@ class FileSystem:
         update that was in flight, never an old state.
         """
         self._generation += 1
-        target = self._dir
+        target = self._dir = self._with_write_length(self._dir)
         where = self._copy_location(target) if self.recovery_copies else None
         if where is not None and not self._write_block(
                 where, encode_copy(stamp_generation(target, self._generation), where)):
@@ -286,6 +287,20 @@ class FileSystem:
                 return False
             self._on_card = stamped
         return where is None or self._write_block(where, bytes(BLOCK_SIZE))
+
+    def _with_write_length(self, d: Directory) -> Directory:
+        """The directory as the printer's RAM holds it: the upload's length in its slot."""
+        if not self._writing:
+            return d
+        slot = d.slots[d.next_file]
+        if slot.length == self._write_length:
+            return d
+        return d.with_slot(d.next_file, replace(slot, length=self._write_length))
+
+    def _length(self, index: int) -> int:
+        if self._writing and index == self._dir.next_file:
+            return self._write_length
+        return self._dir.slots[index].length
 
     def _copy_location(self, target: Directory) -> int | None:
         """The write position, if no committed file (before or after) lies there."""
@@ -361,6 +376,7 @@ class FileSystem:
                                             start_block=start, length=0))
         self._writing = True
         self._write_pos = start
+        self._write_length = 0
         return self._make_space(after_write=False)
 
     def _clobber_reader(self) -> None:
@@ -371,15 +387,14 @@ class FileSystem:
         """Drop the oldest file while the write position has reached its start."""
         while True:
             d = self._dir
-            ring = d.ring()
-            if not ring:
+            if d.first_file == d.next_file:  # no committed file left
                 writing = d.slots[d.next_file]
                 if after_write and self._write_pos == writing.start_block:
                     self.errors.set(ErrorBit.FILE_TOO_LARGE)
                     self._abandon_write()
                     return False
                 return True
-            oldest = ring[0]
+            oldest = d.first_file
             if d.slots[oldest].start_block != self._write_pos:
                 return True
             if self._reader and self._reader.slot == oldest:
@@ -398,7 +413,7 @@ class FileSystem:
         self._writing = False
 
     def _expected_chunk(self) -> int:
-        return self._dir.slots[self._dir.next_file].length // BLOCK_SIZE
+        return self._write_length // BLOCK_SIZE
 
     def write_chunk(self, sequence: int, data: bytes) -> bool:
         """Store one 512-byte chunk of the file being written."""
@@ -421,9 +436,7 @@ class FileSystem:
         self._write_pos = following_block(self._write_pos, 1, self.card.capacity)
         if not self._make_space(after_write=True):
             return False
-        n = self._dir.next_file
-        slot = self._dir.slots[n]
-        self._dir = self._dir.with_slot(n, replace(slot, length=slot.length + BLOCK_SIZE))
+        self._write_length += BLOCK_SIZE
         return True
 
     def end_write_file(self, sequence: int, data: bytes) -> bool:
@@ -437,10 +450,8 @@ class FileSystem:
         if tail:
             if not self._store_block(tail.ljust(BLOCK_SIZE, b"\0")):
                 return False
-            n = self._dir.next_file
-            self._dir = self._dir.with_slot(
-                n, replace(self._dir.slots[n], length=sequence * BLOCK_SIZE + len(tail)))
-        d = self._dir
+            self._write_length = sequence * BLOCK_SIZE + len(tail)
+        d = self._dir = self._with_write_length(self._dir)
         n = d.next_file
         if d.slots[n].length == 0:
             self._abandon_write()  # a zero-length file is not committed
@@ -504,7 +515,7 @@ class FileSystem:
         reader = self._reader
         if reader is None or not self._ensure_mounted() or self._reader is None:
             return b""
-        available = self._dir.slots[reader.slot].length
+        available = self._length(reader.slot)
         if reader.offset >= available:
             return b""
         data = self._read_block(reader.block)
@@ -522,7 +533,7 @@ class FileSystem:
             return True
         if self._reading_file_being_written():
             return False
-        return reader.offset >= self._dir.slots[reader.slot].length
+        return reader.offset >= self._length(reader.slot)
 
     def close(self) -> None:
         self._reader = None

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
 
 @dataclass
 class Tear:
@@ -22,6 +20,8 @@ class Tear:
     fill: int | None = None
 
     def apply(self, old: bytes, new: bytes) -> bytes:
+        import numpy as np  # only here: keeps robox-cli start-up fast
+
         if self.fill is not None:
             return bytes([self.fill]) * len(new)
         if self.prefix is not None:
