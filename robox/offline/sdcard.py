@@ -114,8 +114,10 @@ def format_image(path: str | os.PathLike, blocks: int | None) -> dict:
                 raise ImageError(f"{path}: the image holds {card.capacity} blocks, not {blocks}; "
                                  "an image is not resized (remove it to make a new one)")
             if not _looks_like_card(card):
-                raise ImageError(f"{path}: block 0 is not a card directory; refusing to "
-                                 "overwrite a file that is not a card image")
+                found = Directory.decode(card.read_block(0)).capacity
+                raise ImageError(f"{path}: block 0 is not a card directory (its capacity field "
+                                 f"says {found} blocks, the image holds {card.capacity}); "
+                                 "refusing to overwrite a file that is not a card image")
             errors = ErrorFlags()
             if not FileSystem(card, errors).format():
                 raise _fs_errors(errors, f"{path}: format failed")
