@@ -125,6 +125,8 @@ def _print_fsck(report: dict) -> None:
                + (f" ({project['reason']})" if project["reason"] else ""))
     for repair in project["repairs"]:
         click.echo(f"  derived: {repair}")
+    if report["files"]:
+        click.echo(f"files (from the {report['files_from']}):")
     for f in report["files"]:
         wraps = ", wraps" if f["wraps"] else ""
         job = "job" if f["job"] else "file"

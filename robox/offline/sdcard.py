@@ -258,8 +258,12 @@ def fsck_image(path: str | os.PathLike) -> dict:
                 "reason": plan.project.reason or None,
                 "repairs": list(plan.repairs),
             },
-            "files": [_file_entry(in_use, i, card.capacity) for i in in_use.ring()]
-            if in_use is not None else [],
+            # the files in use after mount; for a card the project would format,
+            # the extents block 0 claims, so a person can see what is wrong
+            "files_from": {"keep": "directory", "recover": "recovery copy",
+                           "format": "invalid directory"}[plan.action],
+            "files": [_file_entry(in_use or d, i, card.capacity)
+                      for i in (in_use or d).ring()],
             "recovery_copy": None if newest is None else {
                 "block": newest.block,
                 "generation": newest.generation,

@@ -234,6 +234,8 @@ def test_fsck_flags_a_start_outside_the_card(fs):
     report = json.loads(run("sdcard", "fsck", "/out.img", "--json").output)
     assert report["printer"]["valid"] and not report["project"]["valid"]
     assert "outside the card" in report["project"]["reason"]
+    assert report["files_from"] == "invalid directory"
+    assert report["files"][0]["start_block"] == 5000
 
 
 def test_fsck_finds_a_usable_recovery_copy_of_a_lost_block_0(fs):
