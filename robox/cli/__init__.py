@@ -8,6 +8,7 @@ import click
 
 from robox import __version__
 from robox.cli.common import RoboxGroup
+from robox.cli.eeprom import eeprom
 from robox.cli.sdcard import sdcard
 
 
@@ -18,6 +19,7 @@ def cli() -> None:
 
 
 cli.add_command(sdcard)
+cli.add_command(eeprom)
 
 
 def main() -> None:

@@ -66,3 +66,21 @@ class FaultPlan:
         if self.remove_before_access is not None:
             parts.append(f"remove_before_access={self.remove_before_access}")
         return ",".join(parts) or "none"
+
+
+@dataclass
+class EepromFaultPlan:
+    """A hot-unplug scheduled by transaction ordinal (1-based) of one EEPROM chip.
+
+    The chip is pulled out at transaction `unplug_at`. If that transaction is a
+    write, `write_lands` says whether its byte reached the cells first; either
+    way the transaction is not acknowledged.
+    """
+
+    unplug_at: int | None = None
+    write_lands: bool = False
+
+    def describe(self) -> str:
+        if self.unplug_at is None:
+            return "none"
+        return f"unplug_at={self.unplug_at},write_lands={self.write_lands}"

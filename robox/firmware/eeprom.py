@@ -1,0 +1,227 @@
+"""The EEPROM object: head, reel 0 and reel 1 kept in RAM, chips maintained a byte at a time.
+
+The state machine is spec/eeprom.md's. On every `maintain()` each of the three
+EEPROMs takes one step, and a step is exactly one single-byte I2C transaction
+at working bank + address counter:
+
+- not VALID: read a byte into the buffer; after 196 bytes a good CRC makes it
+  VALID, a bad one makes it PRESENT on bank 1 (both banks tried) and leaves
+  it as it was on bank 0; either way the working bank flips.
+- VALID: read and compare; a match advances (after 196 bytes the bank is
+  verified and the working bank flips); a mismatch makes the next step a write
+  of the buffer's byte, which the step after reads back.
+- no acknowledged transaction for 0.2 s: NOT_PRESENT, counter 0, bank 0.
+
+So after any change the working bank is rewritten and verified before the
+other bank is touched: one bank always holds a complete, CRC-good copy.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+from robox.firmware.error_flags import ErrorFlags
+from robox.formats import float8
+from robox.formats.eeprom import (
+    BANK_ADDRESSES,
+    BANK_SIZE,
+    DATA_SIZE,
+    KIND_OF,
+    EepromIndex,
+    eeprom_crc,
+    mask7,
+)
+from robox.formats.eeprom import field as field_named
+from robox.formats.protocol import ErrorBit
+from robox.hardware.clock import SimClock
+from robox.hardware.eeprom import EepromBus
+
+#: No acknowledged transaction for this long: the EEPROM is gone.
+TIMEOUT_S = 0.2
+
+ERROR_BIT = {
+    EepromIndex.HEAD: ErrorBit.HEAD_EEPROM,
+    EepromIndex.REEL0: ErrorBit.REEL0_EEPROM,
+    EepromIndex.REEL1: ErrorBit.REEL1_EEPROM,
+}
+
+
+class Status(IntEnum):
+    NOT_PRESENT = 0
+    PRESENT = 1
+    VALID = 2
+
+
+@dataclass
+class EepromState:
+    """What the firmware keeps for one EEPROM."""
+
+    index: EepromIndex
+    status: Status = Status.NOT_PRESENT
+    buffer: bytearray = field(default_factory=lambda: bytearray(BANK_SIZE))
+    working_bank: int = 0
+    counter: int = 0
+    writing: bool = False
+    last_ack: float = 0.0
+    #: banks verified since the RAM copy last changed (2: the chip holds it twice)
+    verified_banks: int = 0
+
+    @property
+    def data(self) -> bytes:
+        return bytes(self.buffer[:DATA_SIZE])
+
+
+class Eeproms:
+    """The firmware object that owns the three EEPROMs."""
+
+    def __init__(self, bus: EepromBus, clock: SimClock, errors: ErrorFlags):
+        self.bus = bus
+        self.clock = clock
+        self.errors = errors
+        #: Called with the EepromIndex when an EEPROM becomes VALID.
+        self.on_valid: list[Callable[[EepromIndex], None]] = []
+        #: Called with the EepromIndex when a VALID EEPROM is lost.
+        self.on_lost: list[Callable[[EepromIndex], None]] = []
+        self.initialise()
+
+    def initialise(self) -> None:
+        now = self.clock.now
+        self.states = [EepromState(index, last_ack=now) for index in EepromIndex]
+
+    def maintain(self) -> None:
+        for state in self.states:
+            self._step(state)
+
+    # ----------------------------------------------------------- one step
+    def _address(self, state: EepromState) -> int:
+        return BANK_ADDRESSES[state.working_bank] + state.counter
+
+    def _step(self, state: EepromState) -> None:
+        address = self._address(state)
+        if state.status == Status.VALID and state.writing:
+            if not self.bus.write(state.index, address, state.buffer[state.counter]):
+                self._no_ack(state)
+                return
+            state.last_ack = self.clock.now
+            state.writing = False  # the next step reads it back
+            return
+        value = self.bus.read(state.index, address)
+        if value is None:
+            self._no_ack(state)
+            return
+        state.last_ack = self.clock.now
+        if state.status == Status.VALID:
+            if value == state.buffer[state.counter]:
+                self._advance(state)
+            else:
+                state.writing = True
+            return
+        state.buffer[state.counter] = value
+        state.counter += 1
+        if state.counter < BANK_SIZE:
+            return
+        if eeprom_crc(bytes(state.buffer)) == 0:
+            state.verified_banks = 1  # the bank just loaded
+            self._become(state, Status.VALID)
+        elif state.working_bank == 1:
+            self._become(state, Status.PRESENT)
+        state.working_bank ^= 1
+        state.counter = 0
+
+    def _advance(self, state: EepromState) -> None:
+        state.counter += 1
+        if state.counter == BANK_SIZE:
+            state.counter = 0
+            state.working_bank ^= 1
+            state.verified_banks += 1
+
+    def _no_ack(self, state: EepromState) -> None:
+        if self.clock.now - state.last_ack < TIMEOUT_S:
+            return
+        was_valid = state.status == Status.VALID
+        state.status = Status.NOT_PRESENT
+        state.counter = 0
+        state.working_bank = 0
+        state.writing = False
+        state.last_ack = self.clock.now
+        if was_valid:
+            for listener in self.on_lost:
+                listener(state.index)
+
+    def _become(self, state: EepromState, status: Status) -> None:
+        was_valid = state.status == Status.VALID
+        state.status = status
+        if status == Status.VALID and not was_valid:
+            for listener in self.on_valid:
+                listener(state.index)
+
+    # ----------------------------------------------------- buffer changes
+    def _change(self, state: EepromState, data: bytes, offset: int = 0) -> None:
+        """Write masked bytes into the RAM copy; a real change restarts verification."""
+        end = min(offset + len(data), DATA_SIZE)
+        new = mask7(data[: max(0, end - offset)])
+        if state.buffer[offset:end] == new:
+            return
+        state.buffer[offset:end] = new
+        state.buffer[DATA_SIZE:BANK_SIZE] = struct.pack("<I", eeprom_crc(state.data))
+        state.counter = 0
+        state.writing = False
+        state.verified_banks = 0
+
+    # ----------------------------------------------------------- host side
+    def status(self, index: EepromIndex) -> Status:
+        return self.states[index].status
+
+    def status_characters(self) -> bytes:
+        """The four characters of the status report: three states and the mux flag."""
+        states = bytes(0x30 + int(s.status) for s in self.states)
+        return states + (b"1" if self.bus.mux_present else b"0")
+
+    def host_write(self, index: EepromIndex, address: int, data: bytes) -> bool:
+        """Write from the host; bytes beyond address 191 are ignored."""
+        state = self.states[index]
+        if state.status != Status.VALID:
+            self.errors.set(ERROR_BIT[index])
+            return False
+        if address < DATA_SIZE:
+            self._change(state, data, address)
+        return True
+
+    def host_read(self, index: EepromIndex) -> bytes:
+        """192 bytes masked to 7 bits; zeros (and the EEPROM's error) when not VALID."""
+        state = self.states[index]
+        if state.status != Status.VALID:
+            self.errors.set(ERROR_BIT[index])
+            return bytes(DATA_SIZE)
+        return mask7(state.data)
+
+    def format(self, index: EepromIndex) -> None:
+        """Zero the data, mark VALID; the chip is rewritten by the normal process."""
+        state = self.states[index]
+        state.buffer[:DATA_SIZE] = bytes(DATA_SIZE)
+        state.buffer[DATA_SIZE:BANK_SIZE] = struct.pack("<I", eeprom_crc(bytes(DATA_SIZE)))
+        state.counter = 0
+        state.writing = False
+        state.verified_banks = 0
+        self._become(state, Status.VALID)
+
+    # ------------------------------------------------- firmware's own fields
+    def get_float(self, index: EepromIndex, name: str) -> float:
+        f = field_named(KIND_OF[index], name)
+        return float8.parse(self.states[index].buffer[f.offset : f.offset + f.size])
+
+    def set_float(self, index: EepromIndex, name: str, value: float) -> bool:
+        state = self.states[index]
+        if state.status != Status.VALID:
+            return False
+        f = field_named(KIND_OF[index], name)
+        self._change(state, float8.encode(value), f.offset)
+        return True
+
+    def settled(self, index: EepromIndex) -> bool:
+        """True unless a VALID EEPROM's chip may still differ from its RAM copy."""
+        state = self.states[index]
+        return state.status != Status.VALID or state.verified_banks >= 2

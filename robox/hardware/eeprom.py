@@ -1,0 +1,98 @@
+"""Simulated I2C EEPROMs (512 bytes) in the head and reel sockets, and the reel-1 mux.
+
+Transactions are single-byte reads and writes. A chip that is not plugged in,
+sits behind an absent multiplexer, or is busy with its internal write cycle
+does not acknowledge: the transaction returns None / False and changes nothing.
+"""
+
+from __future__ import annotations
+
+from robox.formats.eeprom import CHIP_SIZE, EepromIndex
+from robox.hardware.clock import SimClock
+from robox.hardware.faults import EepromFaultPlan
+
+#: Internal write cycle of a small serial EEPROM: it ignores the bus meanwhile.
+WRITE_CYCLE_S = 0.005
+
+
+class EepromChip:
+    """A 512-byte EEPROM. Starts from any content: blank 0xFF by default."""
+
+    def __init__(self, content: bytes | None = None, clock: SimClock | None = None,
+                 faults: EepromFaultPlan | None = None, write_cycle: float = WRITE_CYCLE_S):
+        data = bytes([0xFF]) * CHIP_SIZE if content is None else bytes(content)
+        if len(data) != CHIP_SIZE:
+            raise ValueError(f"an EEPROM chip holds {CHIP_SIZE} bytes, not {len(data)}")
+        self.data = bytearray(data)
+        self.clock = clock
+        self.faults = faults or EepromFaultPlan()
+        self.write_cycle = write_cycle if clock is not None else 0.0
+        self.plugged = True
+        self.transactions = 0
+        self.reads = 0
+        self.writes = 0
+        self.nacks = 0
+        self._busy_until = 0.0
+
+    def unplug(self) -> None:
+        self.plugged = False
+
+    def plug(self) -> None:
+        self.plugged = True
+
+    def _now(self) -> float:
+        return self.clock.now if self.clock is not None else 0.0
+
+    def _acknowledges(self) -> bool:
+        self.transactions += 1
+        if self.faults.unplug_at == self.transactions:
+            self.plugged = False
+        if not self.plugged or self._now() < self._busy_until:
+            self.nacks += 1
+            return False
+        return True
+
+    def read(self, address: int) -> int | None:
+        """One single-byte read; None when not acknowledged."""
+        if not self._acknowledges():
+            return None
+        self.reads += 1
+        return self.data[address % CHIP_SIZE]
+
+    def write(self, address: int, value: int) -> bool:
+        """One single-byte write; False when not acknowledged."""
+        ordinal = self.transactions + 1
+        if not self._acknowledges():
+            if self.faults.unplug_at == ordinal and self.faults.write_lands:
+                self.data[address % CHIP_SIZE] = value & 0xFF
+            return False
+        self.writes += 1
+        self.data[address % CHIP_SIZE] = value & 0xFF
+        self._busy_until = self._now() + self.write_cycle
+        return True
+
+
+class EepromBus:
+    """The printer's I2C bus: head and reel 0 sockets, and reel 1 behind the dual-reel
+    adaptor's multiplexer (absent unless an adaptor is fitted)."""
+
+    def __init__(self, head: EepromChip | None = None, reel0: EepromChip | None = None,
+                 reel1: EepromChip | None = None, mux_present: bool = False):
+        self.sockets: list[EepromChip | None] = [head, reel0, reel1]
+        self.mux_present = mux_present
+
+    def chip(self, index: EepromIndex) -> EepromChip | None:
+        if index == EepromIndex.REEL1 and not self.mux_present:
+            return None
+        return self.sockets[index]
+
+    def insert(self, index: EepromIndex, chip: EepromChip | None) -> None:
+        self.sockets[index] = chip
+
+    def read(self, index: EepromIndex, address: int) -> int | None:
+        chip = self.chip(index)
+        return None if chip is None else chip.read(address)
+
+    def write(self, index: EepromIndex, address: int, value: int) -> bool:
+        chip = self.chip(index)
+        return False if chip is None else chip.write(address, value)

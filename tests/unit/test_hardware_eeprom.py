@@ -1,0 +1,53 @@
+"""Simulated EEPROM chips: transactions, write cycle, hot-unplug, the reel-1 mux."""
+
+from robox.formats.eeprom import EepromIndex
+from robox.hardware.clock import SimClock
+from robox.hardware.eeprom import WRITE_CYCLE_S, EepromBus, EepromChip
+from robox.hardware.faults import EepromFaultPlan
+
+
+def test_single_byte_transactions_and_counters():
+    chip = EepromChip(bytes(range(256)) * 2)
+    assert chip.read(0x105) == 5
+    assert chip.write(7, 0xAB) and chip.data[7] == 0xAB
+    assert (chip.transactions, chip.reads, chip.writes, chip.nacks) == (2, 1, 1, 0)
+
+
+def test_blank_by_default_and_any_starting_content():
+    assert EepromChip().data == b"\xff" * 512
+    assert EepromChip(bytes(512)).data == bytes(512)
+
+
+def test_an_unplugged_chip_acknowledges_nothing_and_changes_nothing():
+    chip = EepromChip(bytes(512))
+    chip.unplug()
+    assert chip.read(0) is None and not chip.write(0, 1)
+    assert chip.data[0] == 0 and chip.nacks == 2
+    chip.plug()
+    assert chip.read(0) == 0
+
+
+def test_the_write_cycle_ignores_the_bus_for_five_milliseconds():
+    clock = SimClock()
+    chip = EepromChip(bytes(512), clock)
+    assert chip.write(1, 9)
+    assert chip.read(1) is None
+    clock.advance(WRITE_CYCLE_S)
+    assert chip.read(1) == 9
+
+
+def test_unplug_mid_write_lands_or_not():
+    for lands in (True, False):
+        chip = EepromChip(bytes(512), faults=EepromFaultPlan(unplug_at=2, write_lands=lands))
+        assert chip.write(0, 1)
+        assert not chip.write(1, 2)
+        assert chip.data[1] == (2 if lands else 0) and not chip.plugged
+
+
+def test_reel_1_is_reached_only_through_the_multiplexer():
+    chip = EepromChip(bytes(512))
+    bus = EepromBus(reel1=chip)
+    assert bus.read(EepromIndex.REEL1, 0) is None and chip.transactions == 0
+    bus.mux_present = True
+    assert bus.read(EepromIndex.REEL1, 0) == 0
+    assert bus.read(EepromIndex.HEAD, 0) is None  # empty socket
