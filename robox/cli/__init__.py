@@ -9,6 +9,7 @@ import click
 from robox import __version__
 from robox.cli.common import RoboxGroup
 from robox.cli.eeprom import eeprom
+from robox.cli.firmware import firmware
 from robox.cli.sdcard import sdcard
 
 
@@ -20,6 +21,7 @@ def cli() -> None:
 
 cli.add_command(sdcard)
 cli.add_command(eeprom)
+cli.add_command(firmware)
 
 
 def main() -> None:

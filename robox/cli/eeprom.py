@@ -23,7 +23,7 @@ def eeprom() -> None:
 
 @eeprom.command("new")
 @click.argument("kind", type=KINDS)
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False),
               help="The dump file to write.")
 @set_option
 def new_cmd(kind: str, output: str, assignments: tuple[str, ...]) -> None:
@@ -33,7 +33,7 @@ def new_cmd(kind: str, output: str, assignments: tuple[str, ...]) -> None:
 
 
 @eeprom.command("show")
-@click.argument("dump", type=click.Path(dir_okay=False))
+@click.argument("dump", type=click.Path(dir_okay=False, readable=False))
 @click.option("--kind", type=KINDS, help="Field map to use (default: guessed from the type "
                                          "code, which only heads have).")
 @json_option
@@ -58,7 +58,7 @@ def show_cmd(dump: str, kind: str | None, as_json: bool) -> None:
 
 
 @eeprom.command("set")
-@click.argument("dump", type=click.Path(dir_okay=False))
+@click.argument("dump", type=click.Path(dir_okay=False, readable=False))
 @click.argument("assignments", nargs=-1, required=True, metavar="FIELD=VALUE...")
 @click.option("--kind", type=KINDS, help="Field map to use (default: guessed).")
 def set_cmd(dump: str, assignments: tuple[str, ...], kind: str | None) -> None:
@@ -69,7 +69,7 @@ def set_cmd(dump: str, assignments: tuple[str, ...], kind: str | None) -> None:
 
 
 @eeprom.command("fsck")
-@click.argument("dump", type=click.Path(dir_okay=False))
+@click.argument("dump", type=click.Path(dir_okay=False, readable=False))
 @json_option
 def fsck_cmd(dump: str, as_json: bool) -> None:
     """Exit 0 if a printer would load DUMP as valid, 1 otherwise, saying why."""

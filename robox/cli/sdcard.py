@@ -21,7 +21,7 @@ def sdcard() -> None:
 
 
 @sdcard.command("format")
-@click.argument("image", type=click.Path(dir_okay=False))
+@click.argument("image", type=click.Path(dir_okay=False, readable=False))
 @click.option("--size", help="Card size: 8MiB, 512KiB, 1GiB or a block count such as 16384b. "
                              "Required to create an image.")
 @json_option
@@ -38,7 +38,7 @@ def format_cmd(image: str, size: str | None, as_json: bool) -> None:
 
 
 @sdcard.command("ls")
-@click.argument("image", type=click.Path(dir_okay=False))
+@click.argument("image", type=click.Path(dir_okay=False, readable=False))
 @json_option
 def ls_cmd(image: str, as_json: bool) -> None:
     """List the committed files of IMAGE, oldest first."""
@@ -57,8 +57,8 @@ def ls_cmd(image: str, as_json: bool) -> None:
 
 
 @sdcard.command("put")
-@click.argument("image", type=click.Path(dir_okay=False))
-@click.argument("file", type=click.Path(dir_okay=False))
+@click.argument("image", type=click.Path(dir_okay=False, readable=False))
+@click.argument("file", type=click.Path(dir_okay=False, readable=False))
 @click.option("--id", "file_id", help="File id (at most 16 ASCII bytes); default: the first "
                                       "16 characters of FILE's name.")
 @click.option("--job", is_flag=True, help="Mark the file as a print job.")
@@ -81,9 +81,9 @@ def put_cmd(image: str, file: str, file_id: str | None, job: bool, as_json: bool
 
 
 @sdcard.command("get")
-@click.argument("image", type=click.Path(dir_okay=False))
+@click.argument("image", type=click.Path(dir_okay=False, readable=False))
 @click.argument("file_id", metavar="ID")
-@click.option("-o", "--output", type=click.Path(dir_okay=False),
+@click.option("-o", "--output", type=click.Path(dir_okay=False, readable=False),
               help="Write to this file instead of standard output.")
 def get_cmd(image: str, file_id: str, output: str | None) -> None:
     """Copy the newest file with id ID from IMAGE, byte-exact."""
@@ -96,7 +96,7 @@ def get_cmd(image: str, file_id: str, output: str | None) -> None:
 
 
 @sdcard.command("fsck")
-@click.argument("image", type=click.Path(dir_okay=False))
+@click.argument("image", type=click.Path(dir_okay=False, readable=False))
 @json_option
 def fsck_cmd(image: str, as_json: bool) -> None:
     """Check IMAGE: validity, what a printer would do at mount, extents, recovery copy.
