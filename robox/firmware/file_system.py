@@ -506,6 +506,28 @@ class FileSystem:
                 return self._update([])
         return True
 
+    def read_committed(self, file_id: bytes) -> bytes | None:
+        """The whole newest committed file with that id (not one still being written),
+        without touching the open read or the last job. None if there is none."""
+        if not self._ensure_mounted():
+            return None
+        lookup = bytes(file_id)[:ID_SIZE].ljust(ID_SIZE, b"\0")
+        d = self._dir
+        for index in reversed(d.ring()):
+            slot = d.slots[index]
+            if slot.id != lookup:
+                continue
+            parts, block, remaining = [], slot.start_block, slot.length
+            while remaining > 0:
+                data = self._read_block(block)
+                if data is None:
+                    return None
+                parts.append(data[: min(BLOCK_SIZE, remaining)])
+                remaining -= BLOCK_SIZE
+                block = following_block(block, 1, self.card.capacity)
+            return b"".join(parts)
+        return None
+
     def _reading_file_being_written(self) -> bool:
         return self._writing and self._reader is not None and \
             self._reader.slot == self._dir.next_file

@@ -29,6 +29,8 @@ UNUSED_PAGE = 510
 UNIQUE_ID_PAGE = 511
 
 DEFAULT_OFFSET = 0xBC
+#: Where a (simulated) image says which revision it is: the marker, then 8 characters.
+REVISION_MARKER = b"ROBOX-REVISION:"
 #: Bounds the printer puts on the SD firmware text, in characters.
 TEXT_MULTIPLE = 2 * PAGE_SIZE  # 512
 TEXT_MIN = 8192  # a binary under 4 KiB is not a credible firmware
@@ -46,6 +48,23 @@ def word_sum(data: bytes | bytearray | memoryview) -> int:
     for i in range(whole, len(raw)):
         total += raw[i] << (8 * (i % 4))
     return total & _U32
+
+
+def image_revision(image: bytes) -> str | None:
+    """The revision an image declares after REVISION_MARKER, if it declares one."""
+    at = bytes(image).find(REVISION_MARKER)
+    if at < 0:
+        return None
+    raw = bytes(image[at + len(REVISION_MARKER) : at + len(REVISION_MARKER) + 8])
+    return raw.split(b"\0", 1)[0].decode("ascii", "replace").strip() or None
+
+
+def flashed_image_pages(flash: bytes) -> int:
+    """Pages of the image in a flash dump: up to the last page in 0..506 not erased."""
+    for page in reversed(IMAGE_PAGES):
+        if bytes(flash[page * PAGE_SIZE : (page + 1) * PAGE_SIZE]) != b"\xff" * PAGE_SIZE:
+            return page + 1
+    return 0
 
 
 def anti_checksum(total: int) -> int:

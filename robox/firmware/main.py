@@ -1,0 +1,192 @@
+"""The firmware's single foreground loop: objects in a registry, power-up, passes, reset.
+
+One pass = `do_everything_else()` (motion, EEPROMs, file system, commands, user
+interface, heaters, hours counter, in that order) then `maintain_job()`. Each
+pass advances the simulated clock. When nothing can happen before a known
+event (a move ending, a dwell, a heater to sample) the clock jumps to it; the
+EEPROMs are then stepped once per jump, which is enough because a settled
+EEPROM's verify cycle only reads (docs/firmware-model.md).
+"""
+
+from __future__ import annotations
+
+import traceback
+from dataclasses import dataclass, field
+
+from robox.firmware.command import Command
+from robox.firmware.eeprom import Eeproms
+from robox.firmware.error_flags import ErrorFlags
+from robox.firmware.file_system import FileSystem
+from robox.firmware.gcode import Job
+from robox.firmware.heaters import Heaters
+from robox.firmware.motion import Motion
+from robox.firmware.parameters import HoursCounter, Parameters
+from robox.firmware.position import Position
+from robox.firmware.reprogram import Reprogram
+from robox.firmware.user_interface import HOT_FLAG_BYTE, UserInterface
+from robox.formats.firmware import IMAGE_PAGES, PAGE_SIZE, flashed_image_pages, image_revision
+from robox.formats.firmware import word_sum as image_sum
+from robox.formats.protocol import ErrorBit
+from robox.hardware.clock import SimClock
+from robox.hardware.eeprom import EepromBus
+from robox.hardware.flash import Flash
+from robox.hardware.machine import Machine
+from robox.hardware.sdcard import SdCard
+from robox.hardware.usb import UsbLink
+
+PASS_S = 0.001  # simulated duration of one loop pass
+HEATER_STEP_S = 0.25  # longest clock jump while a heater is being waited for
+IDLE_STEP_S = 1.0  # longest clock jump when nothing at all is pending
+DEFAULT_REVISION = "unknown"
+
+POWER_UP_ORDER = ("parameters", "hours", "eeproms", "command", "job", "heaters", "motion",
+                  "position", "file_system", "reprogram", "user_interface")
+MAINTAIN_ORDER = ("motion", "eeproms", "file_system", "command", "user_interface", "heaters",
+                  "hours")
+
+
+@dataclass
+class Hardware:
+    """Everything outside the microcontroller; it persists across resets."""
+
+    card: SdCard
+    eeprom_bus: EepromBus
+    flash: Flash = field(default_factory=Flash)
+    usb: UsbLink = field(default_factory=UsbLink)
+    machine: Machine = field(default_factory=Machine)
+    clock: SimClock = field(default_factory=SimClock)
+
+
+class Firmware:
+    """The model of the printer's firmware, running on `Hardware`."""
+
+    def __init__(self, hw: Hardware):
+        self.hw = hw
+        self.clock = hw.clock
+        self.resets = 0
+        self.faults: list[str] = []
+        self.power_up()
+
+    # ------------------------------------------------------------ registry
+    def lookup(self, name: str):
+        return self.objects[name]
+
+    def __getattr__(self, name: str):
+        objects = self.__dict__.get("objects")
+        if objects is not None and name in objects:
+            return objects[name]
+        raise AttributeError(name)
+
+    # ------------------------------------------------------------ power up
+    def power_up(self) -> None:
+        """Everything in RAM starts afresh; card, chips and flash keep their content."""
+        self.errors = ErrorFlags()
+        self.events: list[tuple[str, object]] = []
+        self.reset_requested = False
+        hw = self.hw
+        self.objects = {
+            "parameters": Parameters(self), "hours": HoursCounter(self),
+            "eeproms": Eeproms(hw.eeprom_bus, hw.clock, self.errors),
+            "command": Command(self), "job": Job(self), "heaters": Heaters(self),
+            "motion": Motion(self), "position": Position(self),
+            "file_system": FileSystem(hw.card, self.errors), "reprogram": Reprogram(self),
+            "user_interface": UserInterface(self),
+        }
+        for name in POWER_UP_ORDER:
+            self.objects[name].initialise()
+        self._maintained = [self.objects[name] for name in MAINTAIN_ORDER]
+        image = hw.flash.read(0, len(IMAGE_PAGES) * PAGE_SIZE)
+        pages = flashed_image_pages(image)
+        self.revision = image_revision(image[: pages * PAGE_SIZE]) or DEFAULT_REVISION
+        if pages == 0 or image_sum(image[: pages * PAGE_SIZE]) != 0:
+            self.errors.set(ErrorBit.FLASH_CHECKSUM)
+        if hw.card.present and self.file_system.nonvolatile(HOT_FLAG_BYTE):
+            self.errors.set(ErrorBit.POWEROFF_WHILST_HOT)
+
+    def request_reset(self) -> None:
+        self.reset_requested = True
+
+    def _reset(self) -> None:
+        self.resets += 1
+        self.hw.flash.flush()
+        self.power_up()
+
+    # ---------------------------------------------------------------- loop
+    def activity(self) -> None:
+        self.job.activity()
+
+    def do_everything_else(self) -> None:
+        for obj in self._maintained:
+            obj.maintain()
+
+    def maintain_job(self) -> None:
+        self.job.maintain_job()
+
+    def busy(self) -> bool:
+        """True when the next pass has work to do now (so the clock must not jump)."""
+        usb = self.hw.usb
+        return bool(usb.received or self.command.buffer or self.command.pending_after_reply
+                    or self.job.runnable() or self.reset_requested
+                    or not all(self.eeproms.settled(i) for i in range(3)))
+
+    def next_step(self, limit: float | None = None) -> float:
+        """How far the clock may move before the next pass."""
+        if self.busy():
+            return PASS_S
+        now = self.clock.now
+        events = [now + IDLE_STEP_S]
+        wait = self.job.waiting
+        if wait is not None:
+            if wait.until is not None:
+                events.append(wait.until)
+            if wait.heater is not None:
+                events.append(now + HEATER_STEP_S)
+        motion_event = self.motion.next_event()
+        if motion_event is not None:
+            events.append(motion_event)
+        if self.heaters.any_on():
+            events.append(now + HEATER_STEP_S)
+        events.append(self.hours.next_tick)
+        step = min(events) - now
+        if limit is not None:
+            step = min(step, limit)
+        return max(PASS_S, step)
+
+    def run_pass(self, step: float | None = None) -> None:
+        """One pass of the loop after the clock moves on by `step` (default: as far as
+        nothing is missed)."""
+        dt = self.next_step() if step is None else step
+        self.clock.advance(dt)
+        self.hw.machine.advance(dt)
+        self.do_everything_else()
+        self.maintain_job()
+        if self.reset_requested:
+            self._reset()
+
+    def run_until(self, condition, timeout: float = 3600.0, max_passes: int = 50_000_000) -> bool:
+        """Run passes until `condition()` holds or `timeout` simulated seconds pass."""
+        end = self.clock.now + timeout
+        for _ in range(max_passes):
+            if condition():
+                return True
+            if self.clock.now >= end:
+                return False
+            self.run_pass(min(self.next_step(), max(PASS_S, end - self.clock.now)))
+        return condition()
+
+    # ------------------------------------------------------------- debug
+    def note_fault(self, exc: BaseException) -> None:
+        """A bug in the model: recorded, never raised into the loop."""
+        self.faults.append("".join(traceback.format_exception_only(type(exc), exc)).strip())
+
+    def debug_text(self) -> str:
+        job = self.job
+        return (f"robox model {self.revision}; t={self.clock.now:.3f}s; lines "
+                f"{job.lines_executed}; jobs {job.jobs_completed}; resets {self.resets}; "
+                f"faults {len(self.faults)}")
+
+    def board_test_text(self) -> str:
+        m = self.hw.machine
+        return (f"24V {'ok' if m.supply_24v else 'off'}; "
+                f"lid {'closed' if m.lid_closed else 'open'}; "
+                f"head power {'on' if m.head_power else 'off'}")

@@ -1,0 +1,80 @@
+"""The USB CDC link between a host and the printer, as the firmware and the host see it.
+
+Bytes the host writes wait in the device's receive endpoint until the firmware
+takes them. The firmware has one transmit buffer: a reply stays "in flight"
+until the host has read all of it, and a reply sent meanwhile clobbers it (the
+firmware then sets USB_TX). A disconnect drops everything in both directions.
+"""
+
+from __future__ import annotations
+
+from robox.errors import RoboxError
+
+PACKET_SIZE = 64
+
+
+class LinkDown(RoboxError):
+    """The USB link is disconnected."""
+
+
+class UsbLink:
+    def __init__(self) -> None:
+        self.connected = True
+        self._rx = bytearray()  # host -> device, not yet taken by the firmware
+        self._tx = bytearray()  # the reply in flight
+        self.replies = 0
+        self.clobbered = 0
+        self.bytes_in = 0
+        self.bytes_out = 0
+
+    # ----------------------------------------------------------- host side
+    def host_write(self, data: bytes) -> None:
+        if not self.connected:
+            raise LinkDown("the printer is not connected")
+        self._rx += data
+        self.bytes_in += len(data)
+
+    def host_read(self, limit: int = PACKET_SIZE) -> bytes:
+        if not self.connected:
+            raise LinkDown("the printer is not connected")
+        out = bytes(self._tx[:limit])
+        del self._tx[:limit]
+        return out
+
+    @property
+    def reply_waiting(self) -> int:
+        return len(self._tx)
+
+    def disconnect(self) -> None:
+        self.connected = False
+        self._rx.clear()
+        self._tx.clear()
+
+    def connect(self) -> None:
+        self.connected = True
+
+    # --------------------------------------------------------- device side
+    @property
+    def received(self) -> int:
+        return len(self._rx)
+
+    def device_take(self, limit: int) -> bytes:
+        out = bytes(self._rx[:limit])
+        del self._rx[:limit]
+        return out
+
+    @property
+    def in_flight(self) -> bool:
+        return bool(self._tx)
+
+    def device_send(self, reply: bytes) -> bool:
+        """Queue a reply; False if one was still in flight (it is clobbered)."""
+        clean = not self._tx
+        if not clean:
+            self.clobbered += 1
+        if not self.connected:
+            return clean
+        self._tx[:] = reply
+        self.replies += 1
+        self.bytes_out += len(reply)
+        return clean
