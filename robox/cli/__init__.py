@@ -11,6 +11,7 @@ from robox.cli.common import RoboxGroup
 from robox.cli.eeprom import eeprom
 from robox.cli.firmware import firmware
 from robox.cli.sdcard import sdcard
+from robox.cli.sim import sim
 
 
 @click.group(cls=RoboxGroup)
@@ -22,6 +23,7 @@ def cli() -> None:
 cli.add_command(sdcard)
 cli.add_command(eeprom)
 cli.add_command(firmware)
+cli.add_command(sim)
 
 
 def main() -> None:

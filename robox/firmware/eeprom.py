@@ -68,6 +68,7 @@ class EepromState:
     last_ack: float = 0.0
     #: banks verified since the RAM copy last changed (2: the chip holds it twice)
     verified_banks: int = 0
+    acked: bool = True  # the last transaction was acknowledged (assumed at power-up)
 
     @property
     def data(self) -> bytes:
@@ -105,6 +106,7 @@ class Eeproms:
             if not self.bus.write(state.index, address, state.buffer[state.counter]):
                 self._no_ack(state)
                 return
+            state.acked = True
             state.last_ack = self.clock.now
             state.writing = False  # the next step reads it back
             return
@@ -112,6 +114,7 @@ class Eeproms:
         if value is None:
             self._no_ack(state)
             return
+        state.acked = True
         state.last_ack = self.clock.now
         if state.status == Status.VALID:
             if value == state.buffer[state.counter]:
@@ -139,6 +142,7 @@ class Eeproms:
             state.verified_banks += 1
 
     def _no_ack(self, state: EepromState) -> None:
+        state.acked = False
         if self.clock.now - state.last_ack < TIMEOUT_S:
             return
         was_valid = state.status == Status.VALID
@@ -225,3 +229,11 @@ class Eeproms:
         """True unless a VALID EEPROM's chip may still differ from its RAM copy."""
         state = self.states[index]
         return state.status != Status.VALID or state.verified_banks >= 2
+
+    def quiet(self, index: EepromIndex) -> bool:
+        """True when stepping this EEPROM now would change nothing but the time: it is
+        settled, or not answering, or answering with no good bank (PRESENT)."""
+        state = self.states[index]
+        if state.status == Status.NOT_PRESENT:
+            return not state.acked
+        return self.settled(index)

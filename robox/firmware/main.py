@@ -127,7 +127,7 @@ class Firmware:
         usb = self.hw.usb
         return bool(usb.received or self.command.buffer or self.command.pending_after_reply
                     or self.job.runnable() or self.reset_requested
-                    or not all(self.eeproms.settled(i) for i in range(3)))
+                    or not all(self.eeproms.quiet(i) for i in range(3)))
 
     def next_step(self, limit: float | None = None) -> float:
         """How far the clock may move before the next pass."""

@@ -1,0 +1,143 @@
+"""The virtual printer: the firmware model on simulated hardware, with a state directory.
+
+State directory (it survives between runs; each file is readable by the
+offline tools):
+    sdcard.img      the SD card, written through as the firmware writes it
+    head.eeprom     512-byte chip dumps of the head and reel EEPROMs
+    reel0.eeprom
+    reel1.eeprom    only with a dual-reel adaptor (its presence fits the mux)
+    flash.bin       the 128 KiB flash, written through
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from robox.errors import ImageError
+from robox.fileio import write_atomically
+from robox.firmware.main import Firmware, Hardware
+from robox.formats.eeprom import CHIP_SIZE, EepromIndex
+from robox.formats.firmware import FLASH_SIZE
+from robox.hardware.eeprom import EepromBus, EepromChip
+from robox.hardware.flash import Flash
+from robox.hardware.sdcard import SdCard
+from robox.hardware.storage import FileStorage, MemoryStorage
+from robox.offline import sdcard as card_images
+from robox.sim import images
+
+CARD_SIZE = "64MiB"
+CHIP_FILES = {EepromIndex.HEAD: "head.eeprom", EepromIndex.REEL0: "reel0.eeprom",
+              EepromIndex.REEL1: "reel1.eeprom"}
+
+
+def default_state_dir() -> Path:
+    base = os.environ.get("XDG_DATA_HOME") or os.path.join(os.path.expanduser("~"), ".local",
+                                                           "share")
+    return Path(base) / "robox" / "sim"
+
+
+def create_state(directory: Path) -> None:
+    """Fill a state directory with a new printer (files already there are kept)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    card = directory / "sdcard.img"
+    if not card.exists():
+        card_images.format_image(card, card_images.parse_size(CARD_SIZE))
+    for name, content in (("head.eeprom", images.head_eeprom),
+                          ("reel0.eeprom", images.reel_eeprom)):
+        if not (directory / name).exists():
+            write_atomically(directory / name, content())
+    if not (directory / "flash.bin").exists():
+        write_atomically(directory / "flash.bin",
+                         images.flash_contents(images.firmware_image(), images.new_unique_id()))
+
+
+class VirtualPrinter:
+    """Firmware plus hardware; `state_dir=None` keeps everything in memory."""
+
+    def __init__(self, state_dir: str | os.PathLike | None = None, card_blocks: int = 16384):
+        self.state_dir = Path(state_dir) if state_dir is not None else None
+        self._files = []
+        chips: dict[EepromIndex, EepromChip | None] = {}
+        if self.state_dir is None:
+            card = SdCard.blank(card_blocks)
+            flash = Flash(MemoryStorage(images.flash_contents(images.firmware_image(),
+                                                              b"RBXSIM0000000001")))
+            chips = {EepromIndex.HEAD: EepromChip(images.head_eeprom()),
+                     EepromIndex.REEL0: EepromChip(images.reel_eeprom()),
+                     EepromIndex.REEL1: None}
+        else:
+            create_state(self.state_dir)
+            card_storage = self._open(self.state_dir / "sdcard.img")
+            card_images.check_image_size(self.state_dir / "sdcard.img", card_storage.size)
+            card = SdCard(card_storage)
+            flash_storage = self._open(self.state_dir / "flash.bin")
+            if flash_storage.size != FLASH_SIZE:
+                raise ImageError(f"{self.state_dir / 'flash.bin'}: not {FLASH_SIZE} bytes")
+            flash = Flash(flash_storage)
+            for index, name in CHIP_FILES.items():
+                path = self.state_dir / name
+                if path.exists():
+                    data = path.read_bytes()
+                    if len(data) != CHIP_SIZE:
+                        raise ImageError(f"{path}: {len(data)} bytes; a chip dump is 512")
+                    chips[index] = EepromChip(data)
+                else:
+                    chips[index] = None
+        bus = EepromBus(chips.get(EepromIndex.HEAD), chips.get(EepromIndex.REEL0),
+                        chips.get(EepromIndex.REEL1),
+                        mux_present=chips.get(EepromIndex.REEL1) is not None)
+        self.hw = Hardware(card, bus, flash)
+        for chip in bus.sockets:
+            if chip is not None:
+                chip.clock = self.hw.clock
+        self._saved_writes = [c.writes if c else 0 for c in bus.sockets]
+        self.firmware = Firmware(self.hw)
+
+    def _open(self, path: Path) -> FileStorage:
+        storage = FileStorage(path, writable=True)
+        self._files.append(storage)
+        return storage
+
+    @property
+    def usb(self):
+        return self.hw.usb
+
+    # ------------------------------------------------------------ running
+    def run_pass(self, step: float | None = None) -> None:
+        self.firmware.run_pass(step)
+        self.save_chips()
+
+    def run_until(self, condition, timeout: float = 3600.0) -> bool:
+        done = self.firmware.run_until(condition, timeout)
+        self.save_chips()
+        return done
+
+    def settle(self, timeout: float = 10.0) -> bool:
+        """Let background work finish: EEPROM banks rewritten, replies sent."""
+        fw = self.firmware
+        return self.run_until(lambda: all(fw.eeproms.settled(i) for i in range(3))
+                              and fw.command.pending_after_reply is None, timeout)
+
+    # ---------------------------------------------------------- persistence
+    def save_chips(self) -> None:
+        if self.state_dir is None:
+            return
+        for index, chip in enumerate(self.hw.eeprom_bus.sockets):
+            if chip is not None and chip.writes != self._saved_writes[index]:
+                write_atomically(self.state_dir / CHIP_FILES[EepromIndex(index)],
+                                 bytes(chip.data))
+                self._saved_writes[index] = chip.writes
+
+    def close(self) -> None:
+        self.save_chips()
+        for storage in self._files:
+            storage.flush()
+            storage.close()
+        self._files = []
+
+    def __enter__(self) -> VirtualPrinter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,110 @@
+"""Serve a virtual printer on a pseudo-terminal, as a real printer's /dev/ttyACM* appears.
+
+The simulated clock either runs as fast as the work needs (jumping over waits,
+standing still while nothing is pending), or is paced to the wall clock
+(`speed` 1 = real time, 10 = ten times faster). Real time lives here only.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import time
+import tty
+
+from robox.sim.printer import VirtualPrinter
+
+READ_SIZE = 4096
+
+
+class PtyServer:
+    def __init__(self, printer: VirtualPrinter, speed: float | None = None):
+        self.printer = printer
+        self.speed = speed
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self.slave)
+        self.stopping = False
+        self._pending_out = bytearray()
+
+    def stop(self, *_args) -> None:
+        self.stopping = True
+
+    def _pump_input(self) -> None:
+        try:
+            data = os.read(self.master, READ_SIZE)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            return
+        if data:
+            self.printer.usb.host_write(data)
+
+    def _pump_output(self) -> None:
+        usb = self.printer.usb
+        while usb.reply_waiting:
+            self._pending_out += usb.host_read(READ_SIZE)
+        while self._pending_out:
+            try:
+                written = os.write(self.master, self._pending_out)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                self._pending_out.clear()  # nobody is listening
+                return
+            del self._pending_out[:written]
+
+    def _work_pending(self) -> bool:
+        fw = self.printer.firmware
+        return fw.busy() or fw.job.running or fw.job.current is not None or \
+            not fw.motion.idle() or fw.heaters.any_on()
+
+    def serve_once(self, timeout: float = 0.05) -> None:
+        """Wait for the host (at most `timeout` s), then run the firmware."""
+        fw = self.printer.firmware
+        wait = 0.0 if (self.speed is None and self._work_pending()) else timeout
+        readable, _, _ = select.select([self.master], [], [], wait)
+        if readable:
+            self._pump_input()
+        if self.speed is None:
+            passes = 0
+            while passes < 2000 and (self._work_pending() or passes == 0):
+                self.printer.run_pass()
+                passes += 1
+                if self.printer.usb.reply_waiting:
+                    break
+        else:
+            target = self._sim_start + (time.monotonic() - self._wall_start) * self.speed
+            while fw.clock.now < target:
+                self.printer.run_pass(min(fw.next_step(), max(0.0, target - fw.clock.now)))
+                if self.printer.usb.reply_waiting:
+                    self._pump_output()
+        self._pump_output()
+
+    def serve(self) -> None:
+        self._sim_start = self.printer.firmware.clock.now
+        self._wall_start = time.monotonic()
+        while not self.stopping:
+            self.serve_once()
+
+    def close(self) -> None:
+        os.close(self.master)
+        os.close(self.slave)
+
+
+def serve_forever(state_dir, speed: float | None, announce) -> None:
+    """Serve until SIGINT or SIGTERM, then leave every state file consistent."""
+    printer = VirtualPrinter(state_dir)
+    server = PtyServer(printer, speed)
+    previous = {sig: signal.signal(sig, server.stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        announce(server.path)
+        server.serve()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        printer.settle()
+        printer.close()
+        server.close()
