@@ -81,7 +81,12 @@ class Position:
         return self.fw.parameters.values["M92"][axis]
 
     def machine_mm(self, axis: str) -> float:
-        return self.fw.hw.machine.axes[axis].position / self.steps_per_mm(axis)
+        """Where the axis is, with the sub-step residue carried for the next move added
+        back (so an idle axis reports exactly the position it was sent to)."""
+        steps = self.fw.hw.machine.axes[axis].position
+        if self.fw.motion.idle():
+            steps += self.residue[axis]
+        return steps / self.steps_per_mm(axis)
 
     def reported_position(self, axis: str) -> float:
         return self.machine_mm(axis) - self._offset(axis)

@@ -116,7 +116,7 @@ class VirtualPrinter:
     def settle(self, timeout: float = 10.0) -> bool:
         """Let background work finish: EEPROM banks rewritten, replies sent."""
         fw = self.firmware
-        return self.run_until(lambda: all(fw.eeproms.settled(i) for i in range(3))
+        return self.run_until(lambda: all(fw.eeproms.quiet(i) for i in range(3))
                               and fw.command.pending_after_reply is None, timeout)
 
     # ---------------------------------------------------------- persistence

@@ -1,0 +1,246 @@
+"""The USB protocol byte for byte: every command's reply, both modes, partial commands,
+resynchronisation, the error flags and the one-reply-in-flight rule."""
+
+import re
+
+import pytest
+
+from robox.formats.protocol import ErrorBit
+from tests.firmware.wire import Wire, float8, hexn, ident
+
+
+@pytest.fixture
+def wire():
+    w = Wire()
+    w.printer.settle()
+    return w
+
+
+def test_ack_is_64_characters_of_error_bits(wire):
+    wire.fw.errors.set(ErrorBit.FILE_TOO_LARGE)
+    wire.fw.errors.set(ErrorBit.BED_TEMPERATURE_DROOP)
+    reply = wire.raw(b"\xb3")
+    expected = ["0"] * 64
+    expected[2] = expected[41] = "1"
+    assert reply == b"\xe3" + "".join(expected).encode()
+    assert wire.raw(b"\xc0") == b"\xe3" + b"0" * 64  # cleared before the ack
+
+
+def test_revision_unique_id_hours_sd_state(wire):
+    assert wire.raw(b"\xb4") == b"\xe4" + b"r776sim\0"
+    assert wire.raw(b"\xb2") == b"\xe5" + b"RBXSIM0000000001".ljust(256, b"\0")
+    assert wire.raw(b"\xb6") == b"\xea" + b"0.000000"
+    assert wire.raw(b"\xbb") == b"\xeb1"
+    wire.printer.hw.card.remove()
+    assert wire.raw(b"\xbb") == b"\xeb0"
+
+
+def test_unique_id_and_hours_are_written_masked_and_persist_in_flash(wire):
+    uid = bytes(range(0x20, 0x7F)).ljust(256, b"Z")
+    wire.ok(b"\xc1" + uid)
+    assert wire.raw(b"\xb2") == b"\xe5" + uid
+    wire.ok(b"\xc6" + b"123.4560")
+    assert wire.raw(b"\xb6") == b"\xea" + b"123.4560"
+    assert wire.printer.hw.flash.page(511) == uid
+
+
+def test_eeprom_read_and_write_reports(wire):
+    reel = wire.raw(b"\xa3")
+    assert reel[0] == 0xE6 and len(reel) == 193
+    assert reel[1:17] == b"RBX-PLA-SIM".ljust(16, b"\0")
+    assert reel[1 + 0x50 : 1 + 0x58] == b"1.750000"
+    wire.ok(b"\xa2" + hexn(0x68, 2) + hexn(5, 2) + b"Hello")
+    assert wire.raw(b"\xa3")[1 + 0x68 : 1 + 0x6D] == b"Hello"
+    head = wire.raw(b"\xa1")
+    assert head[0] == 0xE2 and head[1:9] == b"RBX01-SM"
+    absent = wire.raw(b"\xa5")  # reel 1: no dual-reel adaptor
+    assert absent == b"\xe8" + bytes(192)
+    assert wire.ack(b"\xb3")[ErrorBit.REEL1_EEPROM] == "1"
+
+
+def test_format_eeprom_zeroes_it(wire):
+    wire.ok(b"\xf9")
+    assert wire.raw(b"\xa3") == b"\xe6" + bytes(192)
+
+
+def test_debug_and_board_test_reports_are_256_bytes(wire):
+    debug = wire.raw(b"\xfb")
+    assert debug[0] == 0xFB and debug[1:].rstrip(b"\0").startswith(b"robox model")
+    board = wire.raw(b"\xfc")
+    assert board[0] == 0xEF and len(board) == 257
+
+
+def test_memory_command_uses_a_simulated_address_space(wire):
+    reply = wire.raw(b"\xf0" + hexn(0x1234, 8) + hexn(6, 4) + b"a1b2c3")
+    assert reply[0] == 0xF0 and reply[1:7] == b"a1b2c3" and reply[7:] == b"00" * 125
+    again = wire.raw(b"\xf0" + hexn(0x1233, 8) + hexn(0, 4))
+    assert again[1:9] == b"00a1b2c3"
+    huge = wire.raw(b"\xf0" + b"ffffffff" + hexn(0, 4))  # wraps inside the model
+    assert len(huge) == 257
+
+
+def status_fields(report: bytes) -> dict:
+    assert report[0] == 0xE1 and len(report) == 222
+    f = {"job": report[1:17], "line": report[17:25], "pause": report[25:26],
+         "busy": report[26:27], "switches": report[27:38], "extruders": report[38:40],
+         "eeproms": report[134:138], "sd": report[138:139], "tool": report[171:172],
+         "head_power": report[220:221], "hw_rev": report[221:222]}
+    for name, start in (("nozzle0", 40), ("nozzle1", 65), ("bed", 90)):
+        f[name] = (report[start : start + 1], report[start + 1 : start + 9],
+                   report[start + 9 : start + 17], report[start + 17 : start + 25])
+    f["ambient"] = (report[115:116], report[116:124], report[124:132])
+    f["fan"], f["why"] = report[132:133], report[133:134]
+    f["positions"] = [report[139 + 8 * i : 147 + 8 * i] for i in range(4)]
+    f["filament"] = [report[172 + 8 * i : 180 + 8 * i] for i in range(6)]
+    return f
+
+
+def nul8(value: float) -> bytes:
+    return f"{value:f}"[:8].encode().ljust(8, b"\0")
+
+
+def test_status_report_field_by_field(wire):
+    wire.ok(b"\xc3" + b"".join(float8(v) for v in (215, 220, 0, 0, 60, 65, 30)))
+    wire.ok(b"\xc8" + float8(2.85) + float8(0.95))
+    wire.ok(b"\xc7" + float8(1.1))
+    wire.ok(b"\xc4" + float8(-3))  # clamped to 0
+    wire.ok(b"\xca" + b"0")
+    f = status_fields(wire.raw(b"\xb0"))
+    assert f["job"] == bytes(16) and f["line"] == b"00000000"
+    assert f["pause"] == b"0" and f["busy"] == b"0"
+    # X Y Z at home, E D none, B at home, lid closed, button up, E index, D, Z top
+    assert f["switches"] == b"11100110100"
+    assert f["extruders"] == b"10"  # single-material head
+    assert f["nozzle0"] == (b"0", nul8(20.0), nul8(215), nul8(220))
+    assert f["bed"][2:] == (nul8(60), nul8(65)) and f["ambient"][2] == nul8(30)
+    assert f["eeproms"] == b"2200" and f["sd"] == b"1" and f["tool"] == b"0"
+    assert f["positions"] == [nul8(0.0)] * 4
+    assert f["filament"] == [nul8(2.85), nul8(0.95), nul8(1.75), nul8(1.0), nul8(0.0),
+                             nul8(1.1)]
+    assert f["head_power"] == b"0" and f["hw_rev"] == b"4"
+
+
+def test_a_partial_command_waits_for_its_bytes(wire):
+    wire.ok(b"\x97" + ident("part"))
+    frame = b"\x91" + hexn(0, 8) + b"G" * 512
+    wire.usb.host_write(frame[:300])
+    wire.printer.run_until(lambda: False, 1.0)
+    assert wire.usb.reply_waiting == 0
+    assert wire.raw(frame[300:]) == b"\xe3" + b"0" * 64
+
+
+def test_unknown_bytes_are_consumed_alone_and_set_bad_command(wire):
+    wire.usb.host_write(b"\xb3")  # Robox mode
+    wire.printer.run_until(lambda: wire.usb.reply_waiting > 0)
+    wire.usb.host_read(65)
+    wire.usb.host_write(b"\x80\x81zz")
+    wire.printer.run_until(lambda: False, 0.1)
+    assert wire.usb.reply_waiting == 0
+    reply = wire.raw(b"\xb4")
+    assert reply == b"\xe4r776sim\0"
+    assert wire.ack(b"\xb3")[ErrorBit.BAD_COMMAND] == "1"
+
+
+def test_a_command_cut_short_by_the_next_one_is_abandoned(wire):
+    wire.ok(b"\xb3")
+    reply = wire.raw(b"\x94abc" + b"\xb4")
+    assert reply == b"\xe4r776sim\0"
+    assert wire.ack(b"\xb3")[ErrorBit.USB_RX] == "1"
+
+
+def test_a_second_reply_before_the_first_is_read_sets_usb_tx(wire):
+    wire.ok(b"\xb3")
+    wire.usb.host_write(b"\xb4\xbb")
+    wire.printer.run_until(lambda: False, 0.05)
+    assert wire.usb.host_read(64) == b"\xeb1"  # the revision report was clobbered
+    assert wire.ack(b"\xb3")[ErrorBit.USB_TX] == "1"
+
+
+def test_pronterface_mode_lines_and_terminators(wire):
+    assert wire.line(b"M115\r\n") == b"FIRMWARE_NAME: robox r776sim\r\nok\r\n"
+    assert wire.line(b"M115\n\r") == b"FIRMWARE_NAME: robox r776sim\r\nok\r\n"
+    assert wire.line(b"M115  \r") == b"FIRMWARE_NAME: robox r776sim\r\nok\r\n"
+    assert re.fullmatch(rb"S:\d+ @\d+ T:\d+ @\d+ B:\d+ \$\d+ A:\d+ \*\d+\r\nok\r\n",
+                        wire.line(b"M105\n"))
+    assert wire.line(b"G28 ; home\n") == b"ok\r\n"
+    assert wire.line(b"N12 G1 X10 Y5 F3000*87\n") == b"ok\r\n"
+    assert wire.line(b"M400\n") == b"ok\r\n"
+    job = wire.fw.job
+    wire.printer.run_until(lambda: not job.execute_buffer and job.current is None
+                           and wire.fw.motion.idle(), 10)
+    assert wire.line(b"M114\n") == \
+        b"X:10.000000 Y:5.000000 Z:0.000000 B:0.000000 T:0\r\nok\r\n"
+    assert wire.line(b"M119\n").startswith(b"M119 X:0 Y:0 Z:1 Z+:0 E:1 D:0 B:1")
+    assert wire.line(b"M999\n") == b"ok\r\n"
+    assert wire.line(b"X-unknown words\n") == b"ok\r\n"
+
+
+def test_the_first_high_byte_switches_to_robox_mode_for_good(wire):
+    assert wire.line(b"M115\n").startswith(b"FIRMWARE")
+    assert wire.raw(b"\xb4")[0] == 0xE4
+    wire.usb.host_write(b"M115\n")
+    wire.printer.run_until(lambda: False, 0.1)
+    assert wire.usb.reply_waiting == 0
+    assert wire.ack(b"\xb3")[ErrorBit.BAD_COMMAND] == "1"
+
+
+def test_gcode_over_0x95_reporting_and_queued(wire):
+    assert wire.gcode(b"M115\r") == b"FIRMWARE_NAME: robox r776sim\r\nok\r\n"
+    assert wire.gcode(b"M115") == b""  # no terminator: no response
+    assert wire.gcode(b"G1 X5 F600\r") == b""  # queued, not done
+    two = wire.gcode(b"M115\rM105\r")
+    assert two.startswith(b"FIRMWARE") and two.endswith(b"ok\r\n") and two.count(b"ok\r\n") == 2
+    m503 = wire.gcode(b"M503\n")
+    assert m503.startswith(b"Ver: ") and b"M92 X133.70" in m503 and m503.endswith(b"ok\r\n")
+
+
+def test_execute_buffer_overrun_drops_the_command(wire):
+    wire.fw.job.execute_buffer += b"G4 S1000\r" * 3
+    filler = b"G1 X1\r" * 169  # 1014 bytes: with its header, fits the receive buffer
+    wire.gcode(filler)
+    assert wire.ack(b"\xb3")[ErrorBit.GCODE_BUFFER_OVERRUN] == "1"
+    assert len(wire.fw.job.execute_buffer) <= 1024
+
+
+def test_file_list_and_send_file_report(wire):
+    wire.upload("first", b"G28\r" * 200)
+    wire.upload("macro", b"M104 S0\r", job=False)
+    assert wire.raw(b"\x96") == b"\xe002" + ident("first") + ident("macro")
+    assert wire.raw(b"\x93") == b"\xe9" + bytes(16) + b"00000000"
+    wire.ok(b"\x97" + ident("next"))
+    wire.ok(b"\x91" + hexn(0, 8) + b"G28\r" * 128)
+    assert wire.raw(b"\x93") == b"\xe9" + ident("next") + b"00000001"
+    assert wire.raw(b"\x96") == b"\xe001" + ident("first")  # the macro made way
+
+
+def test_chunk_errors_are_acknowledged_with_their_bits(wire):
+    wire.ok(b"\x97" + ident("seq"))
+    errors = wire.ack(b"\x91" + hexn(3, 8) + b"x" * 512)
+    assert errors[ErrorBit.CHUNK_SEQUENCE] == "1"
+
+
+def test_format_sd_card(wire):
+    wire.upload("first", b"G28\r")
+    wire.ok(b"\xfe")
+    assert wire.raw(b"\x96") == b"\xe000"
+
+
+def test_leds_and_head_power(wire):
+    wire.ok(b"\xc2" + b"ff8000")
+    wire.ok(b"\xc5" + b"0000FF")
+    machine = wire.printer.hw.machine
+    assert machine.ambient_led == (255, 128, 0) and machine.button_led == (0, 0, 255)
+    wire.ok(b"\xca1")
+    assert machine.head_power
+
+
+def test_reset_restarts_from_power_up_keeping_card_chips_and_flash(wire):
+    wire.upload("keep", b"G28\r")
+    wire.ok(b"\xc1" + b"ID".ljust(256, b"\0"))
+    assert wire.fw.command.robox_mode
+    assert wire.raw(b"\xfd") == b"\xe3" + b"0" * 64
+    wire.printer.run_until(lambda: wire.fw.resets == 1, 1.0)
+    assert wire.fw.resets == 1 and not wire.fw.command.robox_mode  # RAM started afresh
+    assert wire.line(b"M115\n").startswith(b"FIRMWARE")
+    assert wire.raw(b"\x96") == b"\xe001" + ident("keep")
+    assert wire.raw(b"\xb2")[1:3] == b"ID"

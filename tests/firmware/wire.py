@@ -1,0 +1,117 @@
+"""Raw protocol frames to and from a virtual printer, for tests (no host library)."""
+
+from __future__ import annotations
+
+import math
+
+from robox.sim.printer import VirtualPrinter
+
+FIXED_REPLY = {0xE1: 222, 0xE2: 193, 0xE3: 65, 0xE4: 9, 0xE5: 257, 0xE6: 193, 0xE8: 193,
+               0xE9: 25, 0xEA: 9, 0xEB: 2, 0xEF: 257, 0xF0: 257, 0xFB: 257}
+
+
+def reply_length(data: bytes) -> int | None:
+    """Length of the report that starts `data`, once enough of it is there to say."""
+    if not data:
+        return None
+    code = data[0]
+    if code in FIXED_REPLY:
+        return FIXED_REPLY[code]
+    if code == 0xE0:
+        return 3 + 16 * int(data[1:3], 16) if len(data) >= 3 else None
+    if code == 0xE7:
+        return 5 + int(data[1:5], 16) if len(data) >= 5 else None
+    raise AssertionError(f"unknown report code {code:#x}")
+
+
+def ident(name: str | bytes) -> bytes:
+    raw = name.encode() if isinstance(name, str) else name
+    return raw.ljust(16, b"\0")
+
+
+def hexn(value: int, digits: int) -> bytes:
+    return f"{value:0{digits}x}".encode()
+
+
+def float8(value: float) -> bytes:
+    return f"{value:f}"[:8].encode().ljust(8, b" ")
+
+
+class Wire:
+    def __init__(self, printer: VirtualPrinter | None = None):
+        self.printer = printer or VirtualPrinter()
+        self.fw = self.printer.firmware
+        self.usb = self.printer.usb
+
+    def raw(self, data: bytes, timeout: float = 10.0) -> bytes:
+        """Send bytes; read one complete report (Robox mode)."""
+        self.usb.host_write(data)
+        out = b""
+        while True:
+            self.printer.run_until(lambda: self.usb.reply_waiting > 0, timeout)
+            if not self.usb.reply_waiting:
+                raise AssertionError(f"no reply to {data[:8]!r} (got {out!r})")
+            out += self.usb.host_read(64)
+            length = reply_length(out)
+            if length is not None and len(out) >= length:
+                assert len(out) == length, out
+                return out
+
+    def line(self, text: bytes, timeout: float = 30.0) -> bytes:
+        """A Pronterface line; the response up to and including ok."""
+        self.usb.host_write(text)
+        out = b""
+        while not out.endswith(b"ok\r\n"):
+            self.printer.run_until(lambda: self.usb.reply_waiting > 0, timeout)
+            if not self.usb.reply_waiting:
+                raise AssertionError(f"no ok for {text!r} (got {out!r})")
+            out += self.usb.host_read(64)
+        return out
+
+    def ack(self, data: bytes) -> str:
+        reply = self.raw(data)
+        assert reply[0] == 0xE3 and len(reply) == 65, reply
+        return reply[1:].decode()
+
+    def ok(self, data: bytes) -> None:
+        errors = self.ack(data)
+        assert set(errors) == {"0"}, f"errors {errors} after {data[:4]!r}"
+
+    def clear(self) -> None:
+        self.ack(b"\xc0")
+
+    def gcode(self, text: bytes) -> bytes:
+        reply = self.raw(b"\x95" + hexn(len(text), 4) + text)
+        assert reply[0] == 0xE7
+        return reply[5:]
+
+    def upload(self, file_id: str, data: bytes, job: bool = True, run_after: int | None = None,
+               between=None) -> None:
+        self.ok((b"\x97" if job else b"\x90") + ident(file_id))
+        chunks = len(data) // 512
+        for n in range(chunks):
+            self.ok(b"\x91" + hexn(n, 8) + data[n * 512 : (n + 1) * 512])
+            if run_after is not None and n == run_after:
+                self.ok(b"\x94" + ident(file_id))
+            if between is not None:
+                between(n)
+        tail = data[chunks * 512 :]
+        self.ok(b"\x92" + hexn(chunks, 8) + hexn(len(tail), 4) + tail)
+
+    def wait_job_done(self, timeout: float = 20000.0) -> None:
+        assert self.printer.run_until(lambda: not self.fw.job.running, timeout)
+
+
+def job_text(lines: list[str]) -> bytes:
+    return b"".join(line.encode() + b"\r" for line in lines)
+
+
+def circle_job(count: int, heat: bool = True) -> bytes:
+    lines = ["M140 S60", "M104 S210", "G28", "M190 S60", "M109 S210"] if heat else ["G28"]
+    lines.append("G90")
+    for i in range(count):
+        a = i * 0.1
+        lines.append(f"G1 X{100 + 30 * math.cos(a):.3f} Y{75 + 30 * math.sin(a):.3f} E0.05 "
+                     "F3000")
+    lines += ["M104 S0", "M140 S0"]
+    return job_text(lines)
