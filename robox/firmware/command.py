@@ -11,7 +11,9 @@ Choices where protocol.md is silent (documented in docs/firmware-model.md):
   and parsing restarts at that byte, since parameters are always ASCII;
 - hex fields read non-hex characters as 0;
 - in Pronterface mode, a leading `N<line>` and a trailing `*<checksum>` (what
-  Printrun and OctoPrint add) are removed before the line is executed.
+  Printrun and OctoPrint add) are removed before the line is executed, and a
+  line that is not a reporting code is answered `ok` once it has run (so M400
+  or M109 answer when done), which is what those hosts count on.
 """
 
 from __future__ import annotations
@@ -145,7 +147,9 @@ class Command:
             return  # the execute buffer is full: the line waits, and so does the host
         del self.buffer[:stop]
         self.fw.activity()
-        self.send(response or b"ok\r\n")
+        if response:
+            self.send(response)  # a reporting code: its text and ok, now
+        # otherwise the job engine sends ok once the line has run, as Marlin hosts expect
 
     # ---------------------------------------------------------- Robox
     def _robox(self) -> None:

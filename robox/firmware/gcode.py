@@ -106,6 +106,8 @@ class Job:
         self.parked: dict | None = None
         self.last_activity = self.fw.clock.now
         self.current: Iterator[Wait] | None = None  # the line (or park) under way
+        self.current_owes_ok = False
+        self.oks_owed = 0  # Pronterface lines queued and not yet answered
         self.waiting: Wait | None = None
         self.lines_executed = 0
         self.jobs_completed = 0
@@ -121,13 +123,15 @@ class Job:
         return None
 
     def execute_now(self, line: bytes) -> bytes | None:
-        """A Pronterface line: a reporting code runs at once (its response is returned),
-        another is queued (b""); None when the execute buffer has no room yet."""
+        """A Pronterface line: a reporting code runs at once (its response and ok are
+        returned); another is queued and owed an ok once it has run (b""). None when
+        the execute buffer has no room yet."""
         if self._reporting(line) is not None:
             return self.report(line)
         if len(self.execute_buffer) + len(line) + 1 > BUFFER_SIZE:
             return None
         self.execute_buffer += line + b"\r"
+        self.oks_owed += 1
         return b""
 
     def report(self, line: bytes) -> bytes:
@@ -226,6 +230,8 @@ class Job:
         self.waiting_for_data = False
         self.current = None
         self.waiting = None
+        self.oks_owed = 0
+        self.current_owes_ok = False
         self.fw.motion.stop()
         self.fw.heaters.all_off()
         self.fw.position.reload_reels()
@@ -286,9 +292,13 @@ class Job:
                 now - self.last_activity >= IDLE_PAUSE_S:
             self.pause()
             return
+        owed = self.oks_owed > 0 and first_line(self.execute_buffer) is not None
         line = self._next_line()
         if line is not None:
             self.activity()
+            if owed:
+                self.oks_owed -= 1
+            self.current_owes_ok = owed
             self._start(self.execute(line))
 
     def _start(self, line: Iterator[Wait]) -> None:
@@ -301,6 +311,9 @@ class Job:
         except StopIteration:
             self.current = None
             self.waiting = None
+            if self.current_owes_ok:
+                self.current_owes_ok = False
+                self.fw.command.send(b"ok\r\n")
 
     def _take_line(self, buffer: bytearray) -> bytes | None:
         end = first_line(buffer)
@@ -317,11 +330,15 @@ class Job:
         if not self.running or self.pause_state != PauseState.RUNNING:
             return None
         line = self._take_line(self.job_buffer)
+        if line is not None and len(line) > LINE_LIMIT:
+            self.fw.errors.set(ErrorBit.GCODE_LINE_TOO_LONG)
+            self.abort()
+            return None
         if line is not None:
             self.line_number += 1
             return line
         fs = self.fw.file_system
-        if len(self.job_buffer) >= LINE_LIMIT:
+        if len(self.job_buffer) >= LINE_LIMIT:  # half full, no line end: too long
             self.fw.errors.set(ErrorBit.GCODE_LINE_TOO_LONG)
             self.abort()
             return None

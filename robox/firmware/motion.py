@@ -1,10 +1,13 @@
 """Motion: a queue of 16 blocks executed in simulated time with trapezoidal profiles.
 
 Simple for now: each block knows its steps per axis, its length in mm and its
-cruise speed; the speed at the junction with the next queued block is the
-lower of the two cruise speeds, scaled down by the change of direction, and
-the last queued block ends at rest. A block's duration is fixed when it
-starts, from its entry speed (the previous block's exit speed).
+cruise speed. When a block starts, the exit speeds of the queued blocks are
+computed backwards from the last one (which ends at rest): each is the lower
+of the junction speed with its successor (the lower cruise speed, scaled by
+the change of direction) and what the deceleration distance allows. The
+block's duration follows from its entry speed (the previous block's exit).
+Blocks start at the `maintain()` after they are queued, so everything a line
+queued in one pass is looked ahead to.
 """
 
 from __future__ import annotations
@@ -68,13 +71,13 @@ class Motion:
     def next_event(self) -> float | None:
         if self.running is not None:
             return self.running.end
+        if self.queue:
+            return self.fw.clock.now
         return None
 
     def add(self, block: Block) -> None:
-        """Queue a block (the caller has waited for room)."""
+        """Queue a block (the caller has waited for room); it starts at the next maintain."""
         self.queue.append(block)
-        if self.running is None:
-            self._start_next()
 
     def stop(self) -> None:
         """Abort: finish the move under way, drop the rest (their steps never happen)."""
@@ -89,8 +92,12 @@ class Motion:
             self.running = None
             return
         entry = self.running.exit_speed if self.running is not None else 0.0
+        exit_speed = 0.0  # the last queued block ends at rest
+        blocks = list(self.queue)
+        for later, earlier in zip(reversed(blocks[1:]), reversed(blocks[:-1]), strict=True):
+            reachable = math.sqrt(exit_speed**2 + 2 * self.accel * later.length)
+            exit_speed = min(self._junction(earlier, later), reachable)
         block = self.queue.popleft()
-        exit_speed = self._junction(block, self.queue[0]) if self.queue else 0.0
         block.exit_speed = exit_speed
         start = max(self.fw.clock.now, self.running.end if self.running else 0.0)
         duration = trapezoid_time(block.length, entry, block.speed, exit_speed, self.accel)
@@ -99,6 +106,8 @@ class Motion:
         self.running = block
 
     def maintain(self) -> None:
+        if self.running is None and self.queue:
+            self._start_next()
         while self.running is not None and self.running.end <= self.fw.clock.now:
             self._complete(self.running)
             previous = self.running

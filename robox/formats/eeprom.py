@@ -173,7 +173,9 @@ def fields_of(kind: str, data: bytes) -> dict:
     return {f.name: f.read(data) for f in FIELDS[kind].values()}
 
 
+_HEAD_CODE = re.compile(rb"^(RBX\d\d-|RX\d)")
+
+
 def guess_kind(data: bytes) -> str:
-    """A head EEPROM's type code starts with RBX or RX; anything else reads as a reel."""
-    code = bytes(data[:16])
-    return "head" if code.startswith((b"RBX", b"RX")) else "reel"
+    """A head's type code is RBXnn-... or RXn... (reel filament IDs read RBX-...)."""
+    return "head" if _HEAD_CODE.match(bytes(data[:16])) else "reel"

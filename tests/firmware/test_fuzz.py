@@ -1,0 +1,58 @@
+"""Any byte sequence on the wire: no exception escapes, the state stays usable, and the
+stream resynchronises on the next command."""
+
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from robox.sim.printer import VirtualPrinter
+from tests.firmware.wire import Wire
+
+PRINTER = VirtualPrinter()
+PRINTER.settle()
+
+command_bytes = st.sampled_from([0x90, 0x91, 0x92, 0x93, 0x94, 0x95, 0x96, 0x97, 0x98, 0xA0,
+                                 0xA1, 0xA3, 0xB0, 0xB3, 0xC3, 0xF0, 0xFF, 0x80, 0xEE])
+chunks = st.lists(st.one_of(st.binary(max_size=40), command_bytes.map(lambda b: bytes([b])),
+                            st.sampled_from([b"0001", b"G1 X5\r", b"M105\r", b"\r\n", b"\x00"])),
+                  max_size=30)
+
+
+def drain(wire: Wire) -> None:
+    wire.printer.run_until(lambda: False, 0.2)
+    while wire.usb.reply_waiting:
+        wire.usb.host_read(4096)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(chunks)
+def test_random_robox_streams_never_break_the_model(parts):
+    wire = Wire(PRINTER)
+    wire.usb.host_write(b"\xb3")
+    for part in parts:
+        wire.usb.host_write(part)
+        wire.printer.run_pass()
+    drain(wire)
+    assert wire.fw.faults == []
+    reply = wire.raw(b"\xb0")  # resynchronised: a status report comes back whole
+    assert reply[0] == 0xE1 and len(reply) == 222
+    wire.raw(b"\xc0")
+    wire.raw(b"\xff")
+    drain(wire)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.binary(max_size=60).filter(lambda b: all(c < 0x80 for c in b)),
+                max_size=15))
+def test_random_pronterface_text_is_answered_or_ignored(parts):
+    wire = Wire(VirtualPrinter())
+    for part in parts:
+        wire.usb.host_write(part)
+        wire.printer.run_pass()
+    wire.usb.host_write(b"\nM115\n")
+    wire.printer.run_until(lambda: b"robox" in bytes(wire.usb._tx) or
+                           wire.fw.command.robox_mode, 30)
+    assert wire.fw.faults == []
+    out = b""
+    while wire.usb.reply_waiting:
+        out += wire.usb.host_read(4096)
+    assert out.endswith(b"ok\r\n")

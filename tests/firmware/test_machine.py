@@ -1,0 +1,225 @@
+"""Position, motion, heaters, bookkeeping, reprogramming and parameters of the model."""
+
+import math
+
+import pytest
+
+from robox.errors import PowerCut
+from robox.firmware.motion import trapezoid_time
+from robox.formats.eeprom import EepromIndex
+from robox.formats.firmware import to_sd_text, word_sum
+from robox.formats.protocol import ErrorBit
+from robox.hardware.flash import FlashFaultPlan
+from robox.sim import images
+from tests.firmware.wire import Wire, float8, ident, job_text
+
+
+@pytest.fixture
+def wire():
+    w = Wire()
+    w.printer.settle()
+    w.clear()
+    return w
+
+
+def run_lines(wire, *lines: str) -> None:
+    wire.gcode(job_text(list(lines)))
+    job = wire.fw.job
+    assert wire.printer.run_until(lambda: not job.execute_buffer and job.current is None
+                                  and wire.fw.motion.idle(), 10000)
+
+
+def e_steps(wire) -> int:
+    return wire.printer.hw.machine.axes["E"].position
+
+
+def test_extrusion_is_volumetric_with_the_reels_diameter(wire):
+    run_lines(wire, "G1 E10 F600")
+    expected = 10 / (math.pi * 1.75**2 / 4) * 747
+    assert e_steps(wire) == round(expected)
+
+
+def test_set_filament_info_changes_diameter_and_multiplier(wire):
+    wire.ok(b"\xc8" + float8(2.85) + float8(1.2))
+    run_lines(wire, "G1 E10 F600")
+    assert e_steps(wire) == round(10 * 1.2 / (math.pi * 2.85**2 / 4) * 747)
+    wire.ok(b"\xc8" + float8(0.01) + float8(-1))  # clamped to 0.1 and 0
+    assert wire.fw.position.filament["E"] == [pytest.approx(0.1), 0.0]
+
+
+def test_thousands_of_tiny_moves_do_not_drift(wire):
+    wire.gcode(b"G91\r")
+    for _ in range(40):
+        run_lines(wire, *["G1 X0.0031 E0.0007 F3000"] * 25)
+    x = wire.printer.hw.machine.axes["X"].position
+    assert x == round(1000 * 0.0031 * 133.7)
+    assert e_steps(wire) == round(1000 * 0.0007 / (math.pi * 1.75**2 / 4) * 747)
+
+
+def test_moves_are_split_into_two_millimetre_segments_and_take_their_time(wire):
+    motion = wire.fw.motion
+    before = motion.moved_seconds
+    run_lines(wire, "G1 X100 F6000")
+    # 50 segments of 2 mm in one straight line: one acceleration and one deceleration
+    took = motion.moved_seconds - before
+    assert took == pytest.approx(trapezoid_time(100, 0, 100, 0, 1500), rel=0.02)
+    assert wire.printer.hw.machine.axes["X"].position == round(100 * 133.7)
+
+
+def test_trapezoid_times():
+    assert trapezoid_time(100, 0, 100, 0, 1000) == pytest.approx(1.1)
+    assert trapezoid_time(1, 0, 100, 0, 1000) == pytest.approx(2 * math.sqrt(1 / 1000))
+
+
+def test_homing_runs_to_the_switches(wire):
+    run_lines(wire, "G1 X50 Y40 Z10 F6000")
+    assert not wire.printer.hw.machine.axes["X"].switch
+    run_lines(wire, "G28")
+    axes = wire.printer.hw.machine.axes
+    assert axes["X"].switch and axes["Y"].switch and axes["Z"].switch
+    assert wire.gcode(b"M114\r").startswith(b"X:0.000000 Y:0.000000 Z:0.000000")
+
+
+def test_m109_and_m190_finish_in_simulated_time(wire):
+    start = wire.fw.clock.now
+    run_lines(wire, "M140 S60", "M104 S210", "M190 S60", "M109 S210")
+    heaters = wire.printer.hw.machine.heaters
+    assert abs(heaters["nozzle0"].temperature - 210) <= 2
+    assert abs(heaters["bed"].temperature - 60) <= 2
+    assert 30 < wire.fw.clock.now - start < 3600
+    m105 = wire.gcode(b"M105\r")
+    assert m105.startswith(b"S:2") and m105.endswith(b"ok\r\n")
+
+
+def test_remaining_filament_is_booked_to_the_reel_every_7_2_s(wire):
+    eeproms = wire.fw.eeproms
+    before = eeproms.get_float(EepromIndex.REEL0, "remaining_filament")
+    run_lines(wire, "G1 E500 F600")  # 500 mm³ = 207.9 mm of 1.75 mm filament
+    used = 500 / (math.pi * 1.75**2 / 4)
+    wire.printer.run_until(lambda: False, 8.0)
+    after = eeproms.get_float(EepromIndex.REEL0, "remaining_filament")
+    assert before - after == math.trunc(used)
+    assert wire.fw.position.used_mm["E"] == pytest.approx(used - math.trunc(used), abs=0.01)
+    wire.printer.settle()
+    chip = bytes(wire.printer.hw.eeprom_bus.sockets[1].data)
+    assert chip[0xB8:0xC0] == f"{after:f}"[:8].encode()
+
+
+def test_head_hours_grow_while_the_head_is_hot(wire):
+    run_lines(wire, "M109 S200")
+    hours = wire.fw.eeproms.get_float(EepromIndex.HEAD, "head_hours")
+    wire.printer.run_until(lambda: False, 72.0)
+    grown = wire.fw.eeproms.get_float(EepromIndex.HEAD, "head_hours") - hours
+    assert grown == pytest.approx(0.02, abs=0.0025)
+
+
+def test_a_new_reel_loads_its_settings(wire):
+    from robox.hardware.eeprom import EepromChip
+    bus = wire.printer.hw.eeprom_bus
+    bus.sockets[1].unplug()
+    wire.printer.run_until(lambda: wire.fw.eeproms.status(EepromIndex.REEL0) == 0, 2)
+    chip = EepromChip(images.reel_eeprom(1000.0), wire.printer.hw.clock)
+    data = bytearray(chip.data)
+    data[0x50:0x58] = b"2.850000"
+    from robox.formats.eeprom import chip_image
+    chip = EepromChip(chip_image(bytes(data[:192])), wire.printer.hw.clock)
+    bus.insert(EepromIndex.REEL0, chip)
+    wire.printer.run_until(lambda: wire.fw.eeproms.status(EepromIndex.REEL0) == 2, 2)
+    assert wire.fw.position.filament["E"][0] == pytest.approx(2.85)
+
+
+# ------------------------------------------------------------ reprogramming
+def upload_firmware(wire, image: bytes, file_id: str = "firmware") -> None:
+    wire.upload(file_id, to_sd_text(image), job=False)
+
+
+def test_a_good_firmware_file_is_flashed_and_the_printer_resets(wire):
+    image = images.firmware_image("r999new", size=32 * 1024, seed=5)
+    upload_firmware(wire, image)
+    assert set(wire.ack(b"\x8f" + ident("firmware"))) == {"0"}
+    wire.printer.run_until(lambda: wire.fw.resets == 1, 1.0)
+    assert wire.fw.resets == 1
+    assert wire.raw(b"\xb4") == b"\xe4r999new\0"
+    flash = wire.printer.hw.flash
+    assert flash.read(0, len(image)) == image
+    assert not wire.fw.errors.is_set(ErrorBit.FLASH_CHECKSUM)
+
+
+@pytest.mark.parametrize("damage", ["checksum", "short", "missing", "odd"])
+def test_a_bad_firmware_file_leaves_flash_alone(wire, damage):
+    flash_before = wire.printer.hw.flash.read(0, 131072)
+    image = bytearray(images.firmware_image("r1bad", size=8192, seed=9))
+    if damage == "checksum":
+        image[100] ^= 1
+        upload_firmware(wire, bytes(image))
+    elif damage == "short":
+        upload_firmware(wire, images.firmware_image("r1", size=2048))
+    elif damage == "odd":
+        wire.upload("firmware", to_sd_text(bytes(image)) + b"0", job=False)
+    errors = wire.ack(b"\x8f" + ident("firmware"))
+    assert errors[ErrorBit.BAD_FIRMWARE_FILE] == "1"
+    wire.printer.run_until(lambda: False, 0.5)
+    assert wire.fw.resets == 0 and wire.printer.hw.flash.read(0, 131072) == flash_before
+
+
+def test_a_firmware_file_still_being_written_does_not_count(wire):
+    text = to_sd_text(images.firmware_image("r2", size=8192))
+    wire.ok(b"\x90" + ident("fw"))
+    wire.ok(b"\x91" + b"00000000" + text[:512])
+    assert wire.ack(b"\x8f" + ident("fw"))[ErrorBit.BAD_FIRMWARE_FILE] == "1"
+
+
+def test_a_power_cut_while_flashing_shows_at_boot(wire):
+    image = images.firmware_image("r3cut", size=16 * 1024, seed=3)
+    upload_firmware(wire, image)
+    wire.printer.hw.flash.faults = FlashFaultPlan(cut_at_write=10, landed=100)
+    wire.usb.host_write(b"\x8f" + ident("firmware"))
+    wire.printer.run_until(lambda: wire.usb.reply_waiting >= 65, 1.0)
+    wire.usb.host_read(65)
+    with pytest.raises(PowerCut):
+        wire.printer.run_until(lambda: False, 1.0)
+    wire.printer.hw.flash.faults = FlashFaultPlan()
+    from robox.firmware.main import Firmware
+    fw = Firmware(wire.printer.hw)  # power comes back
+    assert fw.errors.is_set(ErrorBit.FLASH_CHECKSUM)
+
+
+def test_boot_checks_the_flash_sum(wire):
+    flash = wire.printer.hw.flash
+    page = bytearray(flash.page(3))
+    page[7] ^= 0xFF
+    flash.write_page(3, bytes(page))
+    wire.raw(b"\xfd")
+    wire.printer.run_until(lambda: wire.fw.resets == 1, 1.0)
+    assert wire.fw.errors.is_set(ErrorBit.FLASH_CHECKSUM)
+    assert word_sum(flash.read(0, images.IMAGE_BYTES)) != 0
+
+
+def test_parameters_survive_a_reset_but_not_another_build(wire):
+    wire.gcode(b"M92 X100 Y101\rM500\r")
+    wire.printer.run_until(lambda: not wire.fw.job.execute_buffer, 5)
+    wire.raw(b"\xfd")
+    wire.printer.run_until(lambda: wire.fw.resets == 1, 1.0)
+    m503 = wire.line(b"M503\n")
+    assert b"M92 X100.00 Y101.00" in m503
+    version = wire.fw.parameters.version
+    assert m503.startswith(f"Ver: {version:08x}\r\n".encode())
+    upload_firmware(wire, images.firmware_image("r4", size=8192, seed=4))
+    wire.raw(b"\x8f" + ident("firmware"))
+    wire.printer.run_until(lambda: wire.fw.resets == 2, 1.0)
+    assert b"M92 X133.70" in wire.line(b"M503\n")  # another build: defaults
+
+
+def test_m502_restores_defaults_and_m501_reloads(wire):
+    run_lines(wire, "M92 X90", "M500", "M502")
+    assert wire.fw.parameters.values["M92"]["X"] == 133.7
+    run_lines(wire, "M501")
+    assert wire.fw.parameters.values["M92"]["X"] == 90.0
+
+
+def test_powered_off_whilst_hot(wire):
+    run_lines(wire, "M109 S200")
+    wire.printer.run_until(lambda: False, 0.1)
+    from robox.firmware.main import Firmware
+    fw = Firmware(wire.printer.hw)  # power cut and back, nozzle still hot
+    assert fw.errors.is_set(ErrorBit.POWEROFF_WHILST_HOT)

@@ -1,0 +1,134 @@
+"""The virtual printer as hosts meet it: state directory, pseudo-terminal, pyusb device."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import serial
+import usb.core
+import usb.util
+from click.testing import CliRunner
+
+from robox.cli import cli
+from robox.sim.printer import VirtualPrinter
+from robox.sim.usb_backend import VirtualRoboxBackend
+from tests.firmware.wire import Wire, circle_job, ident
+
+
+def run_cli(*args):
+    return CliRunner().invoke(cli, list(args), catch_exceptions=False)
+
+
+def test_a_new_state_directory_is_a_printer_the_offline_tools_can_read(tmp_path):
+    state = tmp_path / "printer"
+    with VirtualPrinter(state) as printer:
+        printer.settle()
+        assert printer.firmware.revision == "r776sim"
+        assert printer.firmware.errors.bits == 0
+    names = sorted(p.name for p in state.iterdir())
+    assert names == ["flash.bin", "head.eeprom", "reel0.eeprom", "sdcard.img"]
+    assert run_cli("sdcard", "fsck", str(state / "sdcard.img")).exit_code == 0
+    reel = json.loads(run_cli("eeprom", "show", str(state / "reel0.eeprom"), "--json").output)
+    assert reel["fields"]["filament_diameter"]["value"] == 1.75
+    assert reel["fields"]["remaining_filament"]["value"] == 240000.0
+    head = json.loads(run_cli("eeprom", "show", str(state / "head.eeprom"), "--json").output)
+    assert head["kind"] == "head" and head["fields"]["type_code"]["value"] == "RBX01-SM"
+
+
+def test_state_persists_between_runs_and_the_card_is_written_through(tmp_path):
+    state = tmp_path / "printer"
+    with VirtualPrinter(state) as printer:
+        wire = Wire(printer)
+        printer.settle()
+        wire.upload("persist", circle_job(100, heat=False))
+        wire.ok(b"\x94" + ident("persist"))
+        wire.wait_job_done()
+        printer.settle()
+        # another process can read the card once the job is done, while we run
+        listing = json.loads(run_cli("sdcard", "ls", str(state / "sdcard.img"), "--json").output)
+        assert [f["id"] for f in listing["files"]] == ["persist"]
+        remaining = printer.firmware.eeproms.get_float(1, "remaining_filament")
+    assert remaining < 240000.0
+    dumped = json.loads(run_cli("eeprom", "show", str(state / "reel0.eeprom"), "--json").output)
+    assert dumped["fields"]["remaining_filament"]["value"] == remaining
+    with VirtualPrinter(state) as again:
+        assert again.firmware.file_system.file_list() == [ident("persist")]
+
+
+def test_a_second_reel_needs_a_dual_reel_adaptor_file(tmp_path):
+    state = tmp_path / "printer"
+    with VirtualPrinter(state):
+        pass
+    (state / "reel1.eeprom").write_bytes((state / "reel0.eeprom").read_bytes())
+    with VirtualPrinter(state) as printer:
+        printer.settle()
+        assert printer.firmware.eeproms.status_characters() == b"2221"
+
+
+def test_the_pyusb_backend_presents_the_real_device():
+    printer = VirtualPrinter()
+    backend = VirtualRoboxBackend(printer)
+    dev = usb.core.find(idVendor=0x16D0, idProduct=0x081B, backend=backend)
+    assert dev is not None and dev.bDeviceClass == 0x02
+    assert usb.util.get_string(dev, dev.iProduct) == "Robox"
+    assert usb.util.get_string(dev, dev.iSerialNumber) == "RBXSIM0000000001"
+    dev.set_configuration()
+    with pytest.raises(usb.core.USBError):
+        usb.util.claim_interface(dev, 1)  # the kernel's cdc_acm driver holds it
+    dev.detach_kernel_driver(1)
+    usb.util.claim_interface(dev, 1)
+    intf = dev.get_active_configuration()[(1, 0)]
+    kinds = sorted((e.bEndpointAddress, usb.util.endpoint_type(e.bmAttributes)) for e in intf)
+    assert kinds == [(0x02, usb.util.ENDPOINT_TYPE_BULK), (0x81, usb.util.ENDPOINT_TYPE_BULK)]
+    dev.write(0x02, b"\xb4")
+    assert bytes(dev.read(0x81, 64, 1000)) == b"\xe4r776sim\0"
+    dev.write(0x02, b"\xb0")
+    status = b""
+    while len(status) < 222:
+        status += bytes(dev.read(0x81, 64, 1000))
+    assert status[0] == 0xE1 and len(status) == 222
+    with pytest.raises(usb.core.USBTimeoutError):
+        dev.read(0x81, 64, 200)
+    printer.usb.disconnect()
+    with pytest.raises(usb.core.USBError):
+        dev.write(0x02, b"\xb4")
+
+
+def read_ok(port: serial.Serial, deadline: float = 10.0) -> bytes:
+    out = b""
+    end = time.monotonic() + deadline
+    while not out.endswith(b"ok\r\n") and time.monotonic() < end:
+        out += port.read(port.in_waiting or 1)
+    return out
+
+
+def test_robox_cli_sim_serve_on_a_pty_for_a_pronterface_host(tmp_path):
+    state = tmp_path / "printer"
+    proc = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
+                             str(state)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        path = proc.stdout.readline().strip()
+        assert path.startswith("/dev/")
+        with serial.Serial(path, 115200, timeout=0.2) as port:
+            port.write(b"N1 M110 N0*125\n")
+            assert read_ok(port) == b"ok\r\n"
+            port.write(b"M115\n")
+            assert read_ok(port) == b"FIRMWARE_NAME: robox r776sim\r\nok\r\n"
+            for line in (b"G28\n", b"G1 X20 Y20 F6000\n", b"M400\n"):
+                port.write(line)
+                assert read_ok(port) == b"ok\r\n"
+            port.write(b"M114\n")
+            assert read_ok(port).startswith(b"X:20.000000 Y:20.000000")
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    assert run_cli("sdcard", "fsck", str(state / "sdcard.img")).exit_code == 0
+    assert run_cli("eeprom", "fsck", str(state / "reel0.eeprom")).exit_code == 0
+    assert os.path.getsize(state / "flash.bin") == 131072
