@@ -29,6 +29,9 @@ NEVER_PAUSE = {ErrorBit.B_POSITION_WARNING, ErrorBit.B_POSITION_LOST,
                ErrorBit.POWEROFF_WHILST_HOT, ErrorBit.E_NO_FILAMENT, ErrorBit.D_NO_FILAMENT}
 NO_PAUSE_WHILE_CONNECTED = {ErrorBit.NOZZLE_FLUSH_NEEDED, ErrorBit.E_FILAMENT_SLIP,
                             ErrorBit.D_FILAMENT_SLIP}
+PAUSE_MASK = sum(1 << bit for bit in ErrorBit if bit not in NEVER_PAUSE)
+PAUSE_MASK_CONNECTED = sum(1 << bit for bit in ErrorBit
+                           if bit not in NEVER_PAUSE | NO_PAUSE_WHILE_CONNECTED)
 
 # Fixed parameter lengths; None: variable (the header says how many bytes follow).
 FIXED = {
@@ -86,11 +89,7 @@ class Command:
         return self.fw.clock.now - self.last_ack_report < HOST_CONNECTED_S
 
     def pausing_errors(self) -> int:
-        mask = 0
-        for bit in ErrorBit:
-            if bit in NEVER_PAUSE or (bit in NO_PAUSE_WHILE_CONNECTED and self.host_connected()):
-                continue
-            mask |= 1 << bit
+        mask = PAUSE_MASK_CONNECTED if self.host_connected() else PAUSE_MASK
         return self.errors.bits & mask
 
     # ---------------------------------------------------------- the loop

@@ -71,12 +71,6 @@ class Firmware:
     def lookup(self, name: str):
         return self.objects[name]
 
-    def __getattr__(self, name: str):
-        objects = self.__dict__.get("objects")
-        if objects is not None and name in objects:
-            return objects[name]
-        raise AttributeError(name)
-
     # ------------------------------------------------------------ power up
     def power_up(self) -> None:
         """Everything in RAM starts afresh; card, chips and flash keep their content."""
@@ -92,6 +86,8 @@ class Firmware:
             "file_system": FileSystem(hw.card, self.errors), "reprogram": Reprogram(self),
             "user_interface": UserInterface(self),
         }
+        for name, obj in self.objects.items():
+            setattr(self, name, obj)  # fw.job etc.: the registry's entries, by name
         for name in POWER_UP_ORDER:
             self.objects[name].initialise()
         self._maintained = [self.objects[name] for name in MAINTAIN_ORDER]

@@ -83,9 +83,11 @@ class Motion:
         """Abort: finish the move under way, drop the rest (their steps never happen)."""
         self.queue.clear()
 
-    def _junction(self, a: Block, b: Block) -> float:
-        cos = sum(x * y for x, y in zip(a.direction, b.direction, strict=True))
-        return min(a.speed, b.speed) * max(0.0, cos)
+    @staticmethod
+    def _junction(a: Block, b: Block) -> float:
+        (ax, ay, az), (bx, by, bz) = a.direction, b.direction
+        cos = ax * bx + ay * by + az * bz
+        return min(a.speed, b.speed) * cos if cos > 0 else 0.0
 
     def _start_next(self) -> None:
         if not self.queue:
@@ -94,9 +96,11 @@ class Motion:
         entry = self.running.exit_speed if self.running is not None else 0.0
         exit_speed = 0.0  # the last queued block ends at rest
         blocks = list(self.queue)
+        twice_accel = 2 * self.accel
+        junction = self._junction
         for later, earlier in zip(reversed(blocks[1:]), reversed(blocks[:-1]), strict=True):
-            reachable = math.sqrt(exit_speed**2 + 2 * self.accel * later.length)
-            exit_speed = min(self._junction(earlier, later), reachable)
+            reachable = math.sqrt(exit_speed * exit_speed + twice_accel * later.length)
+            exit_speed = min(junction(earlier, later), reachable)
         block = self.queue.popleft()
         block.exit_speed = exit_speed
         start = max(self.fw.clock.now, self.running.end if self.running else 0.0)

@@ -1,0 +1,138 @@
+#!/usr/bin/env python3
+"""The firmware model on a real slicer's G-code: upload through the protocol, print to the end.
+
+Usage: python bench/model.py [--quick]
+Needs slic3r on the PATH (Debian: apt-get install slic3r). The model is made
+here (a twisted star tower, written as a binary STL) and sliced with
+volumetric E, as a Robox expects; the G-code is cached in bench/.cache/.
+Prints wall time, G-code lines per second, upload MB/s, and simulated print
+time over wall time. Asserts nothing.
+"""
+
+import math
+import shutil
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from robox.sim.printer import VirtualPrinter  # noqa: E402
+from tests.firmware.wire import Wire, hexn, ident  # noqa: E402
+
+CACHE = ROOT / "bench" / ".cache"
+
+
+def star_tower(height: float, radius: float, points: int, twist: float, layers: int,
+               steps: int = 8) -> list[tuple]:
+    """Triangles of a closed twisted star prism."""
+    ring = []
+    for k in range(layers + 1):
+        z = height * k / layers
+        angle0 = twist * k / layers
+        ring.append([(math.cos(angle0 + 2 * math.pi * i / (points * steps)) *
+                      radius * (0.55 + 0.45 * math.cos(points * 2 * math.pi * i /
+                                                        (points * steps))),
+                      math.sin(angle0 + 2 * math.pi * i / (points * steps)) *
+                      radius * (0.55 + 0.45 * math.cos(points * 2 * math.pi * i /
+                                                        (points * steps))), z)
+                     for i in range(points * steps)])
+    n = len(ring[0])
+    triangles = []
+    for k in range(layers):
+        lower, upper = ring[k], ring[k + 1]
+        for i in range(n):
+            a, b = lower[i], lower[(i + 1) % n]
+            c, d = upper[i], upper[(i + 1) % n]
+            triangles += [(a, b, d), (a, d, c)]
+    for ring_k, z_up in ((ring[0], False), (ring[-1], True)):
+        centre = (0.0, 0.0, ring_k[0][2])
+        for i in range(n):
+            a, b = ring_k[i], ring_k[(i + 1) % n]
+            triangles.append((centre, a, b) if z_up else (centre, b, a))
+    return triangles
+
+
+def write_stl(path: Path, triangles: list[tuple]) -> None:
+    with path.open("wb") as out:
+        out.write(b"robox bench star tower".ljust(80, b" "))
+        out.write(struct.pack("<I", len(triangles)))
+        for a, b, c in triangles:
+            ux, uy, uz = (b[i] - a[i] for i in range(3))
+            vx, vy, vz = (c[i] - a[i] for i in range(3))
+            nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+            length = math.sqrt(nx * nx + ny * ny + nz * nz) or 1.0
+            out.write(struct.pack("<12fH", nx / length, ny / length, nz / length,
+                                  *a, *b, *c, 0))
+
+
+def sliced_gcode(quick: bool) -> Path:
+    CACHE.mkdir(parents=True, exist_ok=True)
+    name = "tower-quick" if quick else "tower"
+    gcode = CACHE / f"{name}.gcode"
+    if gcode.exists():
+        return gcode
+    if shutil.which("slic3r") is None:
+        raise SystemExit("bench/model.py needs slic3r (apt-get install slic3r)")
+    stl = CACHE / f"{name}.stl"
+    height = 20.0 if quick else 80.0
+    write_stl(stl, star_tower(height, 30.0, 5, math.pi / 2, int(height)))
+    subprocess.run(["slic3r", str(stl), "--output", str(gcode), "--layer-height", "0.2",
+                    "--fill-density", "20%", "--perimeters", "3", "--nozzle-diameter", "0.4",
+                    "--filament-diameter", "1.75", "--temperature", "210",
+                    "--bed-temperature", "60", "--use-volumetric-e", "--use-relative-e-distances",
+                    "--print-center",
+                    "105,75", "--skirts", "1"], check=True, capture_output=True)
+    return gcode
+
+
+def host_text(raw: bytes) -> bytes:
+    """What a host sends: comments and blank lines stripped, each line ended with CR."""
+    lines = []
+    for line in raw.splitlines():
+        line = line.split(b";", 1)[0].strip()
+        if line:
+            lines.append(line)
+    return b"\r".join(lines) + b"\r"
+
+
+def main() -> None:
+    quick = "--quick" in sys.argv
+    path = sliced_gcode(quick)
+    job = host_text(path.read_bytes())
+    lines = job.count(b"\r")
+    printer = VirtualPrinter(card_blocks=4 * 65536)
+    wire = Wire(printer)
+    printer.settle()
+    wire.clear()
+    start = time.perf_counter()
+    wire.ok(b"\x97" + ident("bench"))
+    chunks = len(job) // 512
+    for n in range(chunks):
+        wire.ok(b"\x91" + hexn(n, 8) + job[n * 512 : (n + 1) * 512])
+        if n == 1:
+            wire.ok(b"\x94" + ident("bench"))
+    tail = job[chunks * 512 :]
+    wire.ok(b"\x92" + hexn(chunks, 8) + hexn(len(tail), 4) + tail)
+    uploaded = time.perf_counter() - start
+    lines_during_upload = printer.firmware.job.line_number
+    printer.run_until(lambda: not printer.firmware.job.running, 10 * 24 * 3600)
+    wall = time.perf_counter() - start
+    fw = printer.firmware
+    simulated = fw.clock.now
+    print(f"slic3r G-code {path.name}: {len(job) / 1e6:.2f} MB sent, {lines} lines, "
+          f"{chunks + 1} chunks")
+    print(f"  upload (printing meanwhile): {uploaded:.2f} s, {len(job) / 1e6 / uploaded:.2f} MB/s,"
+          f" {lines_during_upload} lines printed by its end")
+    print(f"  whole job: {wall:.2f} s wall, {fw.job.line_number / wall:,.0f} G-code lines/s")
+    print(f"  simulated print time {simulated / 3600:.2f} h; simulated / wall = "
+          f"{simulated / wall:,.0f}x")
+    print(f"  finished: {('job finished', ident('bench')) in fw.events}; "
+          f"filament used {fw.position.total_mm['E'] / 1000:.2f} m; faults {len(fw.faults)}")
+
+
+if __name__ == "__main__":
+    main()
