@@ -30,6 +30,7 @@ class Position:
 
     def initialise(self) -> None:
         self.logical = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
+        self.applied_offset = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}  # in the machine
         self.relative = False
         self.feed_rate = 3000.0  # mm/min
         self.tool = 0
@@ -140,7 +141,11 @@ class Position:
             if axis in p:
                 target[axis] = target[axis] + p[axis] if self.relative else p[axis]
         extrude = {e: self.filament_mm(e, p[e]) for e in "ED" if e in p}
-        delta = {a: target[a] - self.logical[a] for a in "XYZB"}
+        # the machine goes to the logical target plus the current tool's offset
+        offset = {a: self._offset(a) for a in "XYZB"}
+        delta = {a: target[a] + offset[a] - self.logical[a] - self.applied_offset[a]
+                 for a in "XYZB"}
+        self.applied_offset = offset
         travel = math.sqrt(delta["X"] ** 2 + delta["Y"] ** 2 + delta["Z"] ** 2)
         segments = max(1, math.ceil(travel / SEGMENT_MM - 1e-9))
         speed = self.feed_rate / 60.0
@@ -192,6 +197,7 @@ class Position:
             yield from wait_for(motion.idle, Wait(motion=True))
             self.logical[axis] = 0.0
             self.residue[axis] = 0.0
+            self.applied_offset[axis] = 0.0
 
     def completed(self, block: Block) -> None:
         for extruder in "ED":

@@ -223,3 +223,19 @@ def test_powered_off_whilst_hot(wire):
     from robox.firmware.main import Firmware
     fw = Firmware(wire.printer.hw)  # power cut and back, nozzle still hot
     assert fw.errors.is_set(ErrorBit.POWEROFF_WHILST_HOT)
+
+
+def test_a_tool_change_applies_the_heads_tool_offsets(wire):
+    offset = b"2.500000"
+    wire.ok(b"\xa0" + b"70" + b"08" + offset)  # nozzle1_x_offset in the head EEPROM
+    wire.printer.settle()
+    run_lines(wire, "G1 X10 F3000", "T1", "G1 X10")
+    machine_x = wire.printer.hw.machine.axes["X"].position / 133.7
+    assert machine_x == pytest.approx(12.5, abs=0.01)
+    assert wire.gcode(b"M114\r").startswith(b"X:10.000000")  # less the tool offset
+    assert wire.gcode(b"M114\r").endswith(b"T:1\r\nok\r\n")
+
+
+def test_set_d_filament_info(wire):
+    wire.ok(b"\xc9" + float8(2.85) + float8(0.9))
+    assert wire.fw.position.filament["D"] == [pytest.approx(2.85), pytest.approx(0.9)]
