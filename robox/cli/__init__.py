@@ -10,20 +10,29 @@ from robox import __version__
 from robox.cli.common import RoboxGroup
 from robox.cli.eeprom import eeprom
 from robox.cli.firmware import firmware
+from robox.cli.printer import COMMANDS
 from robox.cli.sdcard import sdcard
 from robox.cli.sim import sim
 
 
 @click.group(cls=RoboxGroup)
 @click.version_option(__version__, prog_name="robox-cli")
-def cli() -> None:
+@click.option("--device", envvar="ROBOX_DEVICE", metavar="DEVICE",
+              help="usb (the one attached Robox), usb:ID (unique-ID prefix), serial:PATH, "
+                   "sim (the built-in virtual printer) or sim:DIR. Default: $ROBOX_DEVICE, "
+                   "else usb.")
+@click.pass_context
+def cli(ctx: click.Context, device: str | None) -> None:
     """Drive a CEL Robox printer, its virtual twin, and its card, EEPROM and firmware images."""
+    ctx.obj = {"device": device}
 
 
 cli.add_command(sdcard)
 cli.add_command(eeprom)
 cli.add_command(firmware)
 cli.add_command(sim)
+for command in COMMANDS:
+    cli.add_command(command)
 
 
 def main() -> None:

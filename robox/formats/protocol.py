@@ -98,3 +98,36 @@ ERROR_TEXT = {
     ErrorBit.D_DRIVER: "D driver fault",
     ErrorBit.BED_TEMPERATURE_DROOP: "bed temperature droop",
 }
+
+
+# ---------------------------------------------------------------- framing
+FIXED_REPLY_LENGTH = {0xE1: 222, 0xE2: 193, 0xE3: 65, 0xE4: 9, 0xE5: 257, 0xE6: 193,
+                      0xE8: 193, 0xE9: 25, 0xEA: 9, 0xEB: 2, 0xEF: 257, 0xF0: 257, 0xFB: 257}
+#: The report each command is answered with (every other command: the ack 0xe3).
+REPLY_TO = {0x93: 0xE9, 0x95: 0xE7, 0x96: 0xE0, 0xA1: 0xE2, 0xA3: 0xE6, 0xA5: 0xE8,
+            0xB0: 0xE1, 0xB2: 0xE5, 0xB4: 0xE4, 0xB6: 0xEA, 0xBB: 0xEB, 0xF0: 0xF0,
+            0xFB: 0xFB, 0xFC: 0xEF}
+
+
+def reply_length(data: bytes) -> int | None:
+    """Total length of the report that `data` starts, once enough of it says; None until
+    then. ValueError for a byte that starts no report."""
+    if not data:
+        return None
+    code = data[0]
+    if code in FIXED_REPLY_LENGTH:
+        return FIXED_REPLY_LENGTH[code]
+    if code == 0xE0:
+        return 3 + 16 * int(data[1:3], 16) if len(data) >= 3 else None
+    if code == 0xE7:
+        return 5 + int(data[1:5], 16) if len(data) >= 5 else None
+    raise ValueError(f"{code:#04x} starts no report")
+
+
+def error_bits(ack: bytes) -> int:
+    """The error bits of an ack/errors report (its 64 characters after the code)."""
+    return sum(1 << i for i, c in enumerate(ack[1:65]) if c == 0x31)
+
+
+def error_names(bits: int) -> list[str]:
+    return [ERROR_TEXT[bit] for bit in ErrorBit if bits >> bit & 1]

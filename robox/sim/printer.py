@@ -27,6 +27,7 @@ from robox.offline import sdcard as card_images
 from robox.sim import images
 
 CARD_SIZE = "64MiB"
+BUNDLED_CARD = Path(__file__).resolve().parent.parent / "data" / "sdcard.img"
 CHIP_FILES = {EepromIndex.HEAD: "head.eeprom", EepromIndex.REEL0: "reel0.eeprom",
               EepromIndex.REEL1: "reel1.eeprom"}
 
@@ -42,7 +43,7 @@ def create_state(directory: Path) -> None:
     directory.mkdir(parents=True, exist_ok=True)
     card = directory / "sdcard.img"
     if not card.exists():
-        card_images.format_image(card, card_images.parse_size(CARD_SIZE))
+        _new_card(card)
     for name, content in (("head.eeprom", images.head_eeprom),
                           ("reel0.eeprom", images.reel_eeprom)):
         if not (directory / name).exists():
@@ -50,6 +51,19 @@ def create_state(directory: Path) -> None:
     if not (directory / "flash.bin").exists():
         write_atomically(directory / "flash.bin",
                          images.flash_contents(images.firmware_image(), images.new_unique_id()))
+
+
+def _new_card(card: Path) -> None:
+    """A 64 MiB card holding the bundled card image's files, in their order."""
+    from robox.fileio import replacing
+
+    with replacing(card) as temp:
+        Path(temp).unlink()
+        card_images.format_image(temp, card_images.parse_size(CARD_SIZE))
+        if BUNDLED_CARD.exists():
+            for entry in card_images.list_image(BUNDLED_CARD)["files"]:
+                data = card_images.get_file(BUNDLED_CARD, entry["id"])
+                card_images.put_file(temp, data, entry["id"], entry["job"])
 
 
 class VirtualPrinter:

@@ -95,7 +95,7 @@ class VirtualRoboxBackend(usb.backend.IBackend):
     def _check_connected(self) -> None:
         if not self.printer.usb.connected:
             raise usb.core.USBError("No such device (it may have been disconnected)",
-                                    errno.ENODEV, -4)
+                                    -4, errno.ENODEV)
 
     def open_device(self, dev):
         self._check_connected()
@@ -118,7 +118,7 @@ class VirtualRoboxBackend(usb.backend.IBackend):
         self._check_connected()
         if self.kernel_driver.get(intf):
             raise usb.core.USBError("Resource busy (the kernel's cdc_acm driver holds it)",
-                                    errno.EBUSY, -6)
+                                    -6, errno.EBUSY)
         self.claimed.add(intf)
 
     def release_interface(self, dev_handle, intf):
@@ -168,7 +168,7 @@ class VirtualRoboxBackend(usb.backend.IBackend):
 
     def _claimed(self, intf: int) -> None:
         if intf not in self.claimed:
-            raise usb.core.USBError("Interface not claimed", errno.EACCES, -3)
+            raise usb.core.USBError("Interface not claimed", -3, errno.EACCES)
 
     def bulk_write(self, dev_handle, ep, intf, data, timeout):
         self._check_connected()
@@ -187,14 +187,14 @@ class VirtualRoboxBackend(usb.backend.IBackend):
                                    not usb_link.connected, seconds)
             self._check_connected()
         if not usb_link.reply_waiting:
-            raise usb.core.USBTimeoutError("Operation timed out", errno.ETIMEDOUT, -7)
+            raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
         chunk = usb_link.host_read(len(buff))
         for i, byte in enumerate(chunk):
             buff[i] = byte
         return len(chunk)
 
     def intr_read(self, dev_handle, ep, intf, buff, timeout):
-        raise usb.core.USBTimeoutError("Operation timed out", errno.ETIMEDOUT, -7)
+        raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
 
 
 ACK_LENGTH = 1 + ERROR_REPORT_BITS

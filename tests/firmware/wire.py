@@ -4,24 +4,8 @@ from __future__ import annotations
 
 import math
 
+from robox.formats.protocol import reply_length
 from robox.sim.printer import VirtualPrinter
-
-FIXED_REPLY = {0xE1: 222, 0xE2: 193, 0xE3: 65, 0xE4: 9, 0xE5: 257, 0xE6: 193, 0xE8: 193,
-               0xE9: 25, 0xEA: 9, 0xEB: 2, 0xEF: 257, 0xF0: 257, 0xFB: 257}
-
-
-def reply_length(data: bytes) -> int | None:
-    """Length of the report that starts `data`, once enough of it is there to say."""
-    if not data:
-        return None
-    code = data[0]
-    if code in FIXED_REPLY:
-        return FIXED_REPLY[code]
-    if code == 0xE0:
-        return 3 + 16 * int(data[1:3], 16) if len(data) >= 3 else None
-    if code == 0xE7:
-        return 5 + int(data[1:5], 16) if len(data) >= 5 else None
-    raise AssertionError(f"unknown report code {code:#x}")
 
 
 def ident(name: str | bytes) -> bytes:

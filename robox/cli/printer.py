@@ -1,0 +1,301 @@
+"""robox-cli commands that drive a printer (real, or the virtual one)."""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import click
+
+from robox.cli.common import emit_json
+from robox.errors import NotFoundError, RoboxError, UsageError
+from robox.formats.protocol import error_names
+from robox.host.client import EEPROMS, looks_like_gcode, prepare_job
+from robox.host.devices import list_printers, open_printer
+from robox.host.transport import Disconnected
+from robox.offline.eeprom import parse_assignments
+from robox.offline.firmware import read_input
+
+json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+WHICH = click.Choice(list(EEPROMS))
+POLL_S = 0.5
+
+
+def device(ctx: click.Context):
+    return open_printer(ctx.obj.get("device") if ctx.obj else None)
+
+
+def job_id_for(path: Path, job: bytes) -> str:
+    """A fresh id for this job's content: the name's start and a content hash (so the
+    same file resumes under the same id)."""
+    stem = "".join(c for c in path.stem if c.isascii() and c.isalnum())[:7] or "job"
+    return f"{stem}_{hashlib.sha1(job).hexdigest()[:16 - len(stem) - 1]}"
+
+
+@click.command("printers")
+@json_option
+def printers_cmd(as_json: bool) -> None:
+    """List the Robox printers attached over USB."""
+    found = [asdict(p) for p in list_printers()]
+    if as_json:
+        emit_json(found)
+        return
+    if not found:
+        click.echo("no Robox attached over USB")
+    for p in found:
+        click.echo(f"{p['unique_id']}  firmware {p['revision']}  (bus {p['bus']}, "
+                   f"address {p['address']})")
+
+
+@click.command("status")
+@json_option
+@click.pass_context
+def status_cmd(ctx, as_json: bool) -> None:
+    """Show the printer's status report."""
+    with device(ctx) as printer:
+        status = printer.status()
+        errors = error_names(printer.errors())
+    data = {k: v for k, v in asdict(status).items() if k != "raw"}
+    data["errors"] = errors
+    if as_json:
+        emit_json(data)
+        return
+    click.echo(f"job: {status.job or 'none'} (line {status.line}, {status.pause})"
+               f"{', busy' if status.busy else ''}")
+    for name, t in status.temperatures.items():
+        click.echo(f"{name}: {t['measured']:.1f} °C, target {t['target']:.1f}")
+    click.echo("position: " + " ".join(f"{a}{v:.3f}" for a, v in status.position.items())
+               + f" T{status.tool}")
+    click.echo("EEPROMs: " + ", ".join(f"{k} {v}" for k, v in status.eeproms.items()
+                                       if k != "dual_reel_adaptor"))
+    click.echo(f"SD card: {'present' if status.sd_card else 'absent'}")
+    click.echo(f"errors: {', '.join(errors) or 'none'}")
+
+
+@click.command("files")
+@json_option
+@click.pass_context
+def files_cmd(ctx, as_json: bool) -> None:
+    """List the files on the printer's SD card, oldest first."""
+    with device(ctx) as printer:
+        files = printer.files()
+    if as_json:
+        emit_json(files)
+    else:
+        for name in files:
+            click.echo(name)
+
+
+@click.command("send-job")
+@click.argument("file", type=click.Path(dir_okay=False, readable=False))
+@click.option("--id", "file_id", help="Job id (at most 16 characters); default: from the "
+                                      "file name and content.")
+@click.option("--wait", is_flag=True, help="Follow the print to its end.")
+@click.option("--resume", is_flag=True, help="Continue an interrupted upload of FILE.")
+@json_option
+@click.pass_context
+def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool,
+                 as_json: bool) -> None:
+    """Upload FILE to the SD card and print it (printing starts after the second chunk)."""
+    raw = read_input(file)
+    if not looks_like_gcode(raw):
+        raise RoboxError(f"{file}: not a G-code file")
+    job = prepare_job(raw)
+    name = file_id or job_id_for(Path(file), job)
+    if len(name.encode("ascii", "replace")) > 16:
+        raise UsageError(f"job id {name!r} is longer than 16 characters")
+    lines = job.count(b"\r")
+    quiet = as_json or not sys.stderr.isatty()
+    with device(ctx) as printer:
+        before = _reels(printer)
+        started = time.monotonic()
+        sim = getattr(printer, "virtual", None)
+        sim_start = sim.firmware.clock.now if sim else None
+        with click.progressbar(length=len(job), label=f"uploading {name}", file=sys.stderr,
+                               hidden=quiet) as bar:
+            sent = [0]
+
+            def progress(done: int, total: int) -> None:
+                bar.update(done - sent[0])
+                sent[0] = done
+
+            try:
+                printer.send_file(job, name, resume=resume, progress=progress)
+            except Disconnected:
+                raise RoboxError(f"the printer was disconnected after {sent[0]} of {len(job)}"
+                                 f" bytes; run the same command with --resume to continue"
+                                 ) from None
+        summary = {"id": name, "bytes": len(job), "lines": lines}
+        if wait:
+            _follow(printer, name, lines, quiet)
+            after = _reels(printer)
+            summary["print_time_s"] = round(time.monotonic() - started, 1)
+            if sim is not None:
+                summary["simulated_print_time_s"] = round(sim.firmware.clock.now - sim_start, 1)
+            summary["filament_used_mm"] = {reel: round(before[reel] - after[reel], 1)
+                                           for reel in before if reel in after}
+            summary["errors"] = error_names(printer.errors())
+    if as_json:
+        emit_json(summary)
+        return
+    click.echo(f"sent {name}: {len(job)} bytes, {lines} lines")
+    if wait:
+        took = summary.get("simulated_print_time_s", summary["print_time_s"])
+        click.echo(f"printed in {took / 60:.1f} min"
+                   + (" (simulated)" if "simulated_print_time_s" in summary else ""))
+        for reel, used in summary["filament_used_mm"].items():
+            click.echo(f"filament used from {reel}: {used / 1000:.2f} m")
+        click.echo(f"errors: {', '.join(summary['errors']) or 'none'}")
+
+
+def _reels(printer) -> dict:
+    status = printer.status()
+    remaining = {}
+    for reel in ("reel0", "reel1"):
+        if status.eeproms[reel] == "valid":
+            remaining[reel] = printer.read_eeprom_fields(reel)["remaining_filament"]
+    return remaining
+
+
+def _follow(printer, name: str, lines: int, quiet: bool) -> None:
+    with click.progressbar(length=lines, label=f"printing {name}", file=sys.stderr,
+                           hidden=quiet) as bar:
+        shown = 0
+        while True:
+            status = printer.status()
+            if status.job != name:
+                bar.update(lines - shown)
+                return
+            bar.update(max(0, status.line - shown))
+            shown = max(shown, status.line)
+            printer.idle(POLL_S)
+
+
+@click.command("run-job")
+@click.argument("file_id", metavar="ID", default="")
+@click.pass_context
+def run_job_cmd(ctx, file_id: str) -> None:
+    """Print a job already on the card (no ID: the last job run)."""
+    with device(ctx) as printer:
+        if file_id and file_id not in printer.files():
+            raise NotFoundError(f"no job {file_id!r} on the printer's card")
+        printer.run_job(file_id)
+        if printer.status().job is None:
+            raise RoboxError("the printer did not start the job (no last job?)")
+    click.echo(f"printing {file_id or 'the last job'}")
+
+
+def _simple(name: str, method: str, help_text: str, done: str):
+    @click.command(name, help=help_text)
+    @click.pass_context
+    def command(ctx) -> None:
+        with device(ctx) as printer:
+            getattr(printer, method)()
+        click.echo(done)
+    return command
+
+
+pause_cmd = _simple("pause", "pause", "Pause the job (the head parks).", "paused")
+resume_cmd = _simple("resume", "resume", "Resume a paused job.", "resumed")
+abort_cmd = _simple("abort", "abort", "Abort the job (heaters off).", "aborted")
+reset_cmd = _simple("reset", "reset", "Reset the printer.", "reset")
+
+
+@click.command("gcode")
+@click.argument("lines", nargs=-1, required=True)
+@click.pass_context
+def gcode_cmd(ctx, lines: tuple[str, ...]) -> None:
+    """Send G-code lines; prints the response of reporting codes (M105, M114, ...)."""
+    with device(ctx) as printer:
+        for line in lines:
+            if not line.isascii():
+                raise UsageError(f"{line!r} is not ASCII G-code")
+            response = printer.gcode(line + "\r")
+            if response:
+                click.echo(response.replace("\r\n", "\n"), nl=False)
+
+
+@click.command("errors")
+@click.option("--clear", is_flag=True, help="Clear the latched errors.")
+@json_option
+@click.pass_context
+def errors_cmd(ctx, clear: bool, as_json: bool) -> None:
+    """Show the printer's latched errors (and clear them with --clear)."""
+    with device(ctx) as printer:
+        names = error_names(printer.errors())
+        if clear:
+            printer.clear_errors()
+    if as_json:
+        emit_json({"errors": names, "cleared": clear})
+    else:
+        click.echo(", ".join(names) or "no errors" + (" (cleared)" if clear and names else ""))
+
+
+@click.command("read-eeprom")
+@click.argument("which", type=WHICH)
+@json_option
+@click.pass_context
+def read_eeprom_cmd(ctx, which: str, as_json: bool) -> None:
+    """Read a head or reel EEPROM and show its fields."""
+    with device(ctx) as printer:
+        fields = printer.read_eeprom_fields(which)
+    if as_json:
+        emit_json(fields)
+    else:
+        width = max(len(n) for n in fields)
+        for name, value in fields.items():
+            click.echo(f"{name:<{width}}  {value}")
+
+
+@click.command("write-eeprom")
+@click.argument("which", type=WHICH)
+@click.argument("assignments", nargs=-1, required=True, metavar="FIELD=VALUE...")
+@click.pass_context
+def write_eeprom_cmd(ctx, which: str, assignments: tuple[str, ...]) -> None:
+    """Change fields of a head or reel EEPROM."""
+    from robox.formats import eeprom as fmt
+
+    pairs = dict(parse_assignments(list(assignments)))
+    kind = "head" if which == "head" else "reel"
+    for name, value in pairs.items():
+        try:
+            fmt.field(kind, name).encode(value)
+        except NotFoundError as exc:
+            raise UsageError(str(exc)) from None
+    with device(ctx) as printer:
+        printer.write_eeprom_fields(which, pairs)
+    click.echo(f"{which}: set {', '.join(pairs)}")
+
+
+@click.command("format-eeprom")
+@click.argument("which", type=WHICH)
+@click.pass_context
+def format_eeprom_cmd(ctx, which: str) -> None:
+    """Format (zero) a head or reel EEPROM."""
+    with device(ctx) as printer:
+        printer.format_eeprom(which)
+    click.echo(f"{which}: formatted")
+
+
+@click.command("update-firmware")
+@click.argument("bin_file", metavar="BIN", type=click.Path(dir_okay=False, readable=False))
+@click.pass_context
+def update_firmware_cmd(ctx, bin_file: str) -> None:
+    """Verify BIN, upload it, flash it, and check the printer comes back."""
+    image = read_input(bin_file)
+    with device(ctx) as printer:
+        before = printer.revision()
+        with click.progressbar(length=2 * len(image), label="uploading firmware",
+                               file=sys.stderr, hidden=not sys.stderr.isatty()) as bar:
+            after_printer = printer.update_firmware(
+                image, progress=lambda done, total: bar.update(done - bar.pos))
+        after = after_printer.revision()
+    click.echo(f"firmware {before} -> {after}")
+
+
+COMMANDS = [printers_cmd, status_cmd, files_cmd, send_job_cmd, run_job_cmd, pause_cmd,
+            resume_cmd, abort_cmd, gcode_cmd, errors_cmd, read_eeprom_cmd, write_eeprom_cmd,
+            format_eeprom_cmd, update_firmware_cmd, reset_cmd]

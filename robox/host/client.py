@@ -1,0 +1,313 @@
+"""The client API: one printer, spoken to strictly stop-and-wait.
+
+Every method sends one command and reads its whole reply before returning,
+so a host never has two commands in flight. Errors the printer reports in an
+ack that were not already latched raise PrinterError, named in words; errors
+latched before (say, from before the connection) are reported by `errors()`
+and do not stop every command.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from robox.errors import RoboxError, UsageError
+from robox.formats import eeprom as eeprom_format
+from robox.formats import float8
+from robox.formats.firmware import check_binary, to_sd_text
+from robox.formats.protocol import (
+    REPLY_TO,
+    ErrorBit,
+    error_bits,
+    error_names,
+    reply_length,
+)
+from robox.formats.sdcard import make_id
+from robox.host.transport import NoReply, TransportError
+
+CHUNK = 512
+EEPROMS = {"head": 0, "reel0": 1, "reel1": 2}
+PAUSE_STATES = {"0": "running", "1": "pausing", "2": "paused", "3": "resuming",
+                "4": "selfie pause"}
+
+
+class PrinterError(RoboxError):
+    """The printer reported errors in its ack."""
+
+    def __init__(self, bits: int, doing: str):
+        self.bits = bits
+        super().__init__(f"{doing}: the printer reports {', '.join(error_names(bits))}")
+
+
+class ProtocolError(RoboxError):
+    """The printer's reply was not the report the command asks for."""
+
+
+@dataclass
+class Status:
+    job: str | None
+    line: int
+    pause: str
+    busy: bool
+    temperatures: dict
+    eeproms: dict
+    sd_card: bool
+    position: dict
+    tool: int
+    filament: dict
+    head_power: bool
+    raw: bytes = field(repr=False, default=b"")
+
+    @classmethod
+    def parse(cls, report: bytes) -> Status:
+        if report[:1] != b"\xe1" or len(report) != 222:
+            raise ProtocolError("malformed status report")
+        job = report[1:17].split(b"\0", 1)[0]
+        temperatures = {}
+        for name, start in (("nozzle0", 40), ("nozzle1", 65), ("bed", 90), ("ambient", 115)):
+            temperatures[name] = {
+                "mode": chr(report[start]),
+                "measured": float8.parse(report[start + 1 : start + 9]),
+                "target": float8.parse(report[start + 9 : start + 17]),
+            }
+            if name != "ambient":
+                temperatures[name]["first_layer_target"] = float8.parse(
+                    report[start + 17 : start + 25])
+        states = {"0": "not present", "1": "present, not valid", "2": "valid"}
+        eeproms = {name: states.get(chr(report[134 + i]), "?")
+                   for i, name in enumerate(("head", "reel0", "reel1"))}
+        eeproms["dual_reel_adaptor"] = report[137:138] == b"1"
+        position = {axis: float8.parse(report[139 + 8 * i : 147 + 8 * i])
+                    for i, axis in enumerate("XYZB")}
+        values = [float8.parse(report[172 + 8 * i : 180 + 8 * i]) for i in range(6)]
+        filament = {"E": {"diameter": values[0], "multiplier": values[1],
+                          "feed_rate_multiplier": values[5]},
+                    "D": {"diameter": values[2], "multiplier": values[3],
+                          "feed_rate_multiplier": values[4]}}
+        return cls(job.decode("ascii", "replace") or None, int(report[17:25], 16),
+                   PAUSE_STATES.get(chr(report[25]), "?"), report[26:27] != b"0",
+                   temperatures, eeproms, report[138:139] == b"1", position,
+                   int(chr(report[171])) if chr(report[171]).isdigit() else 0, filament,
+                   report[220:221] == b"1", bytes(report))
+
+
+def prepare_job(text: bytes) -> bytes:
+    """Comments and blank lines stripped, each line ended with CR (protocol.md)."""
+    lines = []
+    for raw in text.replace(b"\r", b"\n").split(b"\n"):
+        line = raw.split(b";", 1)[0]
+        paren = line.find(b"(")
+        if paren >= 0:
+            line = line[:paren]
+        line = line.strip()
+        if line:
+            lines.append(line)
+    return b"".join(line + b"\r" for line in lines)
+
+
+def looks_like_gcode(text: bytes) -> bool:
+    """Printable text whose lines start with G, M or T codes."""
+    if not text or b"\0" in text[:4096]:
+        return False
+    try:
+        text[:65536].decode("ascii")
+    except UnicodeDecodeError:
+        return False
+    words = [line.split()[0] for line in prepare_job(text[:65536]).split(b"\r") if line.split()]
+    return bool(words) and all(w[:1].upper() in (b"G", b"M", b"T") for w in words[:50])
+
+
+class Printer:
+    """A printer at the other end of a transport."""
+
+    def __init__(self, transport, reply_timeout_ms: int = 10000,
+                 idle: Callable[[float], None] | None = None):
+        self.transport = transport
+        self.timeout = reply_timeout_ms
+        self.in_flight = False
+        self.known_errors = 0
+        self.idle = idle or time.sleep
+        self.commands_sent = 0
+        self.known_errors = self.errors()
+
+    # ------------------------------------------------------------ wire
+    def transact(self, frame: bytes) -> bytes:
+        """Send one command, read its whole reply. Never two in flight."""
+        if self.in_flight:
+            raise ProtocolError("a command is already in flight")
+        self.in_flight = True
+        try:
+            self.transport.write(frame, self.timeout)
+            self.commands_sent += 1
+            reply = b""
+            while True:
+                reply += self.transport.read(64, self.timeout)
+                try:
+                    length = reply_length(reply)
+                except ValueError:
+                    raise ProtocolError(f"unexpected reply {reply[:8]!r}") from None
+                if length is not None and len(reply) >= length:
+                    break
+            expected = REPLY_TO.get(frame[0], 0xE3)
+            if reply[0] != expected or len(reply) != length:
+                raise ProtocolError(f"asked {frame[0]:#04x}, got a {reply[0]:#04x} report")
+            return reply
+        finally:
+            self.in_flight = False
+
+    def ack(self, frame: bytes, doing: str) -> int:
+        bits = error_bits(self.transact(frame))
+        fresh = bits & ~self.known_errors
+        self.known_errors = bits
+        if fresh:
+            raise PrinterError(fresh, doing)
+        return bits
+
+    # ----------------------------------------------------------- reports
+    def errors(self) -> int:
+        return error_bits(self.transact(b"\xb3"))
+
+    def clear_errors(self) -> None:
+        self.transact(b"\xc0")
+        self.known_errors = 0
+
+    def status(self) -> Status:
+        return Status.parse(self.transact(b"\xb0"))
+
+    def files(self) -> list[str]:
+        reply = self.transact(b"\x96")
+        count = int(reply[1:3], 16)
+        return [reply[3 + 16 * i : 19 + 16 * i].split(b"\0", 1)[0].decode("ascii", "replace")
+                for i in range(count)]
+
+    def revision(self) -> str:
+        return self.transact(b"\xb4")[1:].split(b"\0", 1)[0].decode("ascii", "replace")
+
+    def unique_id(self) -> str:
+        raw = self.transact(b"\xb2")[1:]
+        return raw.split(b"\0", 1)[0].decode("ascii", "replace").strip()
+
+    def hours(self) -> float:
+        return float8.parse(self.transact(b"\xb6")[1:])
+
+    def sd_card_present(self) -> bool:
+        return self.transact(b"\xbb")[1:2] == b"1"
+
+    def send_file_report(self) -> tuple[str | None, int]:
+        reply = self.transact(b"\x93")
+        file_id = reply[1:17].split(b"\0", 1)[0].decode("ascii", "replace")
+        return (file_id or None), int(reply[17:25], 16)
+
+    # ------------------------------------------------------------ control
+    def gcode(self, text: str | bytes) -> str:
+        data = text.encode("ascii") if isinstance(text, str) else text
+        if len(data) > 1019:
+            raise UsageError("G-code text longer than 1019 bytes does not fit one command")
+        reply = self.transact(b"\x95" + f"{len(data):04x}".encode() + data)
+        return reply[5:].decode("ascii", "replace")
+
+    def run_job(self, file_id: str = "") -> None:
+        self.ack(b"\x94" + (make_id(file_id) if file_id else bytes(16)), "run job")
+
+    def pause(self) -> None:
+        self.ack(b"\x981", "pause")
+
+    def resume(self) -> None:
+        self.ack(b"\x980", "resume")
+
+    def abort(self) -> None:
+        self.ack(b"\xff", "abort")
+
+    def reset(self) -> None:
+        self.ack(b"\xfd", "reset")
+
+    # ----------------------------------------------------------- EEPROMs
+    def read_eeprom(self, which: str) -> bytes:
+        index = EEPROMS[which]
+        reply = self.transact(bytes([0xA1 + 2 * index]))
+        bits = error_bits(self.transact(b"\xb3"))
+        bit = (ErrorBit.HEAD_EEPROM, ErrorBit.REEL0_EEPROM, ErrorBit.REEL1_EEPROM)[index]
+        if bits >> bit & 1 and not self.known_errors >> bit & 1:
+            self.known_errors |= 1 << bit
+            raise PrinterError(1 << bit, f"read {which} EEPROM")
+        return reply[1:]
+
+    def read_eeprom_fields(self, which: str) -> dict:
+        data = self.read_eeprom(which)
+        kind = "head" if which == "head" else "reel"
+        return eeprom_format.fields_of(kind, data)
+
+    def write_eeprom(self, which: str, address: int, data: bytes) -> None:
+        index = EEPROMS[which]
+        for offset in range(0, len(data), 255):
+            part = data[offset : offset + 255]
+            self.ack(bytes([0xA0 + 2 * index]) + f"{address + offset:02x}{len(part):02x}"
+                     .encode() + part, f"write {which} EEPROM")
+
+    def write_eeprom_fields(self, which: str, assignments: dict[str, str]) -> None:
+        kind = "head" if which == "head" else "reel"
+        for name, value in assignments.items():
+            f = eeprom_format.field(kind, name)
+            self.write_eeprom(which, f.offset, eeprom_format.mask7(f.encode(value)))
+
+    def format_eeprom(self, which: str) -> None:
+        self.ack(bytes([0xF8 + EEPROMS[which]]), f"format {which} EEPROM")
+
+    # --------------------------------------------------------- send a job
+    def send_file(self, data: bytes, file_id: str, job: bool = True, run: bool = True,
+                  resume: bool = False,
+                  progress: Callable[[int, int], None] | None = None) -> None:
+        """Store `data` as a file: start, chunks, end. A job starts printing once more
+        than one chunk is stored. With `resume`, continue the upload the printer reports
+        as open instead of starting over."""
+        stored = make_id(file_id)
+        name = stored.rstrip(b"\0").decode("ascii")
+        chunks = len(data) // CHUNK
+        first = 0
+        if resume:
+            open_id, first = self.send_file_report()
+            if open_id != name:
+                raise RoboxError(f"the printer has no upload of {name!r} to resume"
+                                 + (f" (it is receiving {open_id!r})" if open_id else ""))
+        else:
+            self.ack((b"\x97" if job else b"\x90") + stored, f"start {name}")
+        started = resume and first > 1
+        for sequence in range(first, chunks):
+            block = data[sequence * CHUNK : (sequence + 1) * CHUNK]
+            self.ack(b"\x91" + f"{sequence:08x}".encode() + block, f"chunk {sequence}")
+            if progress:
+                progress((sequence + 1) * CHUNK, len(data))
+            if job and run and not started and sequence >= 1:
+                self.run_job(name)
+                started = True
+        tail = data[chunks * CHUNK :]
+        self.ack(b"\x92" + f"{chunks:08x}{len(tail):04x}".encode() + tail, f"end {name}")
+        if progress:
+            progress(len(data), len(data))
+        if job and run and not started:
+            self.run_job(name)
+
+    # ---------------------------------------------------- update firmware
+    def update_firmware(self, image: bytes, file_id: str = "robox_firmware",
+                        progress: Callable[[int, int], None] | None = None,
+                        reconnect: Callable[[], Printer] | None = None) -> Printer:
+        """Verify locally, upload as SD text, trigger the update, wait for the printer
+        to come back; returns the printer to use afterwards."""
+        verdict = check_binary(image)
+        if not verdict.accepted:
+            reasons = "; ".join(f"{c.value} ({d})" for c, d in verdict.failures)
+            raise RoboxError(f"the image would be refused: {reasons}")
+        self.send_file(to_sd_text(image), file_id, job=False, progress=progress)
+        self.ack(b"\x8f" + make_id(file_id), "update firmware")
+        printer = reconnect() if reconnect else self
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                printer.revision()
+                return printer
+            except (NoReply, TransportError):
+                if time.monotonic() > deadline:
+                    raise
+                self.idle(0.5)

@@ -1,0 +1,151 @@
+"""Choosing a printer: `usb`, `usb:ID`, `serial:PATH`, `sim` and `sim:DIR`.
+
+`sim` runs the built-in virtual printer in this process for the duration of
+the command, reached through its pyusb backend (the same code path as a real
+printer), and lets it finish its background work before the command exits.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from robox.errors import RoboxError, UsageError
+from robox.host.client import Printer
+from robox.host.transport import (
+    PRODUCT_ID,
+    VENDOR_ID,
+    PermissionDenied,
+    SerialTransport,
+    TransportError,
+    UsbTransport,
+    permission_hint,
+)
+
+ENVIRONMENT = "ROBOX_DEVICE"
+SIM_STEP_S = 5.0  # simulated seconds a sim device runs while the host waits
+
+
+class NoPrinter(RoboxError):
+    """No printer matches the selection."""
+
+
+@dataclass
+class Attached:
+    unique_id: str
+    revision: str
+    bus: int | None
+    address: int | None
+
+
+def _usb_devices():
+    import usb.core
+
+    try:
+        return list(usb.core.find(find_all=True, idVendor=VENDOR_ID, idProduct=PRODUCT_ID))
+    except usb.core.NoBackendError:
+        raise NoPrinter("no USB backend: install libusb (Debian: libusb-1.0-0)") from None
+
+
+def _open_usb(device) -> Printer:
+    import usb.core
+
+    try:
+        return Printer(UsbTransport(device))
+    except usb.core.USBError as exc:
+        if exc.errno in (errno.EACCES, errno.EPERM):
+            raise PermissionDenied(permission_hint()) from None
+        raise TransportError(f"USB error: {exc}") from None
+
+
+def list_printers() -> list[Attached]:
+    found = []
+    for device in _usb_devices():
+        printer = _open_usb(device)
+        try:
+            found.append(Attached(printer.unique_id(), printer.revision(), device.bus,
+                                  device.address))
+        finally:
+            printer.transport.close()
+    return found
+
+
+def _select_usb(prefix: str | None) -> Printer:
+    devices = _usb_devices()
+    if not devices:
+        raise NoPrinter("no Robox is attached over USB (VID 16D0, PID 081B)")
+    if prefix is None and len(devices) == 1:
+        return _open_usb(devices[0])
+    matches, ids = [], []
+    for device in devices:
+        printer = _open_usb(device)
+        unique = printer.unique_id()
+        ids.append(unique)
+        if prefix is not None and unique.startswith(prefix):
+            matches.append(printer)
+        else:
+            printer.transport.close()
+    if prefix is None:
+        raise NoPrinter(f"{len(devices)} printers are attached ({', '.join(ids)}); choose "
+                        "one with --device usb:ID")
+    if not matches:
+        raise NoPrinter(f"no attached printer's unique ID starts with {prefix!r} "
+                        f"(attached: {', '.join(ids) or 'none'})")
+    if len(matches) > 1:
+        raise NoPrinter(f"{prefix!r} matches {len(matches)} printers; give more of the ID")
+    return matches[0]
+
+
+@contextlib.contextmanager
+def _sim(directory: Path) -> Iterator[Printer]:
+    import usb.core
+
+    from robox.sim.printer import VirtualPrinter, create_state
+    from robox.sim.usb_backend import VirtualRoboxBackend
+
+    create_state(directory)
+    virtual = VirtualPrinter(directory)
+    try:
+        virtual.settle()  # power-up: the EEPROMs load, as on a printer switched on a moment ago
+        backend = VirtualRoboxBackend(virtual)
+        device = usb.core.find(idVendor=VENDOR_ID, idProduct=PRODUCT_ID, backend=backend)
+
+        def idle(seconds: float) -> None:
+            virtual.run_until(lambda: False, max(seconds, SIM_STEP_S))
+
+        printer = Printer(UsbTransport(device), idle=idle)
+        printer.virtual = virtual
+        yield printer
+    finally:
+        virtual.settle()
+        virtual.close()
+
+
+@contextlib.contextmanager
+def open_printer(spec: str | None) -> Iterator[Printer]:
+    """The printer chosen by `spec` (default: $ROBOX_DEVICE, else `usb`)."""
+    spec = spec or os.environ.get(ENVIRONMENT) or "usb"
+    kind, _, rest = spec.partition(":")
+    if kind == "sim":
+        from robox.sim.printer import default_state_dir
+
+        with _sim(Path(rest) if rest else default_state_dir()) as printer:
+            yield printer
+        return
+    if kind == "usb":
+        printer = _select_usb(rest or None)
+    elif kind == "serial":
+        if not rest:
+            raise UsageError("serial needs a path: --device serial:/dev/ttyACM0")
+        printer = Printer(SerialTransport(rest))
+    else:
+        raise UsageError(f"unknown device {spec!r}: use usb, usb:ID, serial:PATH, sim or "
+                         "sim:DIR")
+    try:
+        yield printer
+    finally:
+        printer.transport.close()

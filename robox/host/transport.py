@@ -1,0 +1,140 @@
+"""Byte transports to a printer: USB through pyusb (a real Robox, or the virtual one through
+its pyusb backend), and serial through pyserial (/dev/ttyACM*, or a virtual printer's pty).
+
+Both read and write raw bytes; framing and stop-and-wait live in the client.
+Failures become robox.errors types a user can act on.
+"""
+
+from __future__ import annotations
+
+import errno
+import time
+
+from robox.errors import RoboxError
+
+VENDOR_ID = 0x16D0
+PRODUCT_ID = 0x081B
+DATA_INTERFACE = 1
+UDEV_RULE = "robox/data/60-robox.rules"
+
+
+class TransportError(RoboxError):
+    """The link to the printer failed."""
+
+
+class Disconnected(TransportError):
+    """The printer went away (unplugged, powered off)."""
+
+
+class NoReply(TransportError):
+    """The printer did not answer in time."""
+
+
+class PermissionDenied(TransportError):
+    """The operating system refused access to the printer."""
+
+
+def permission_hint() -> str:
+    return ("permission denied opening the printer: install the udev rule shipped as "
+            f"{UDEV_RULE} (see README, 'Using a printer without root')")
+
+
+class UsbTransport:
+    """Bulk endpoints of the Robox's CDC data interface, through pyusb."""
+
+    def __init__(self, device):
+        import usb.core
+        import usb.util
+
+        self._usb = usb
+        self.device = device
+        try:
+            for interface in (0, DATA_INTERFACE):
+                if device.is_kernel_driver_active(interface):
+                    device.detach_kernel_driver(interface)
+            try:
+                device.set_configuration()
+            except usb.core.USBError as exc:
+                if exc.errno != errno.EBUSY:
+                    raise
+            usb.util.claim_interface(device, DATA_INTERFACE)
+            setting = device.get_active_configuration()[(DATA_INTERFACE, 0)]
+            self.ep_out = usb.util.find_descriptor(setting, custom_match=lambda e:
+                                                   usb.util.endpoint_direction(
+                                                       e.bEndpointAddress) ==
+                                                   usb.util.ENDPOINT_OUT)
+            self.ep_in = usb.util.find_descriptor(setting, custom_match=lambda e:
+                                                  usb.util.endpoint_direction(
+                                                      e.bEndpointAddress) ==
+                                                  usb.util.ENDPOINT_IN)
+        except usb.core.USBError as exc:
+            raise self._translate(exc) from None
+        if self.ep_out is None or self.ep_in is None:
+            raise TransportError("the USB device has no bulk endpoints: not a Robox?")
+
+    def _translate(self, exc) -> TransportError:
+        code = getattr(exc, "errno", None)
+        if code in (errno.EACCES, errno.EPERM):
+            return PermissionDenied(permission_hint())
+        if code in (errno.ENODEV, errno.EIO, errno.EPIPE) or \
+                getattr(exc, "backend_error_code", None) == -4:
+            return Disconnected("the printer was disconnected")
+        if isinstance(exc, self._usb.core.USBTimeoutError) or code == errno.ETIMEDOUT:
+            return NoReply("the printer did not answer")
+        return TransportError(f"USB error: {exc}")
+
+    def write(self, data: bytes, timeout_ms: int = 5000) -> None:
+        try:
+            self.ep_out.write(data, timeout_ms)
+        except self._usb.core.USBError as exc:
+            raise self._translate(exc) from None
+
+    def read(self, limit: int, timeout_ms: int = 5000) -> bytes:
+        try:
+            return bytes(self.ep_in.read(max(limit, 64), timeout_ms))
+        except self._usb.core.USBError as exc:
+            raise self._translate(exc) from None
+
+    def close(self) -> None:
+        try:
+            self._usb.util.release_interface(self.device, DATA_INTERFACE)
+            self._usb.util.dispose_resources(self.device)
+        except self._usb.core.USBError:
+            pass
+
+
+class SerialTransport:
+    """A serial port: a printer's /dev/ttyACM*, or a virtual printer's pty."""
+
+    def __init__(self, path: str):
+        import serial
+
+        self._serial = serial
+        try:
+            self.port = serial.Serial(path, 115200, timeout=0.05, write_timeout=5)
+        except serial.SerialException as exc:
+            if isinstance(exc.__context__, PermissionError) or "ermission" in str(exc):
+                raise PermissionDenied(f"{path}: {permission_hint()}") from None
+            raise TransportError(f"{path}: cannot open: {exc.strerror or exc}") from None
+
+    def write(self, data: bytes, timeout_ms: int = 5000) -> None:
+        try:
+            self.port.write(data)
+            self.port.flush()
+        except (self._serial.SerialException, OSError):
+            raise Disconnected("the printer was disconnected") from None
+
+    def read(self, limit: int, timeout_ms: int = 5000) -> bytes:
+        end = time.monotonic() + timeout_ms / 1000.0
+        while True:
+            try:
+                data = self.port.read(min(limit, max(1, self.port.in_waiting)))
+            except (self._serial.SerialException, OSError):
+                raise Disconnected("the printer was disconnected") from None
+            if data:
+                return data
+            if time.monotonic() >= end:
+                raise NoReply("the printer did not answer")
+
+    def close(self) -> None:
+        self.port.close()

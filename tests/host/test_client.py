@@ -1,0 +1,252 @@
+"""robox-cli and the client API against the virtual printer, through the pyusb backend
+(the hardware's code path) and through a real pty."""
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import usb.core
+from click.testing import CliRunner
+
+from robox.cli import cli
+from robox.formats.protocol import reply_length
+from robox.host.client import Printer, PrinterError, prepare_job
+from robox.host.transport import Disconnected, UsbTransport
+from robox.sim import images
+from robox.sim.printer import VirtualPrinter
+from robox.sim.usb_backend import VirtualRoboxBackend
+from tests.cli.test_sdcard_cli import one_line_error
+from tests.firmware.wire import circle_job
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "robox" / "data" / "example.gcode"
+
+
+def run(*args):
+    return CliRunner().invoke(cli, list(args), catch_exceptions=False)
+
+
+@pytest.fixture
+def state(tmp_path):
+    return tmp_path / "printer"
+
+
+def sim(state, *args):
+    return run("--device", f"sim:{state}", *args)
+
+
+def test_send_job_wait_prints_the_example_to_the_end(state):
+    result = sim(state, "send-job", str(EXAMPLE), "--wait", "--json")
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.output)
+    assert summary["lines"] == prepare_job(EXAMPLE.read_bytes()).count(b"\r")
+    assert summary["errors"] == [] and summary["simulated_print_time_s"] > 60
+    assert 0 < summary["filament_used_mm"]["reel0"] < 1000
+    files = json.loads(sim(state, "files", "--json").output)
+    assert files[-1] == summary["id"]
+    human = sim(state, "send-job", str(EXAMPLE), "--wait")
+    assert "printed in" in human.output and "errors: none" in human.output
+
+
+def test_status_files_gcode_errors(state):
+    status = json.loads(sim(state, "status", "--json").output)
+    assert status["eeproms"]["head"] == "valid" and status["sd_card"]
+    assert status["job"] is None and status["errors"] == []
+    assert "square_tower" in sim(state, "files").output  # from the bundled card
+    out = sim(state, "gcode", "M115", "G28", "M114").output
+    assert out.startswith("FIRMWARE_NAME: robox r776sim\nok\n")
+    assert sim(state, "errors").output.strip() == "no errors"
+
+
+@pytest.fixture
+def served(tmp_path):
+    """A virtual printer that keeps running between commands: sim serve on a pty."""
+    proc = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
+                             str(tmp_path / "served")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        yield f"serial:{proc.stdout.readline().strip()}"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 0 and "Traceback" not in err
+
+
+def test_pause_resume_abort_and_run_job(served):
+    def on(*args):
+        return run("--device", served, *args)
+
+    assert on("run-job", "spiral_vase").exit_code == 0
+    assert json.loads(on("status", "--json").output)["job"] == "spiral_vase"
+    assert on("pause").exit_code == 0
+    assert json.loads(on("status", "--json").output)["pause"] in ("pausing", "paused")
+    for _ in range(200):  # the line under way (a heat-up) ends, then the head parks
+        if json.loads(on("status", "--json").output)["pause"] == "paused":
+            break
+    assert json.loads(on("status", "--json").output)["pause"] == "paused"
+    assert on("resume").exit_code == 0
+    assert json.loads(on("status", "--json").output)["pause"] in ("resuming", "running")
+    assert on("abort").exit_code == 0
+    assert json.loads(on("status", "--json").output)["job"] is None
+    assert on("run-job").exit_code == 0  # the last job again
+    assert json.loads(on("status", "--json").output)["job"] == "spiral_vase"
+    one_line_error(on("run-job", "nothing_here"), 1, "no job")
+
+
+def test_eeprom_round_trips(state):
+    assert sim(state, "write-eeprom", "reel0", "remaining_filament=1234.5",
+               "friendly_name=Test reel").exit_code == 0
+    fields = json.loads(sim(state, "read-eeprom", "reel0", "--json").output)
+    assert fields["remaining_filament"] == 1234.5 and fields["friendly_name"] == "Test reel"
+    dump = json.loads(run("eeprom", "show", str(state / "reel0.eeprom"), "--json").output)
+    assert dump["fields"]["remaining_filament"]["value"] == 1234.5  # banks written, saved
+    assert sim(state, "format-eeprom", "head").exit_code == 0
+    assert json.loads(sim(state, "read-eeprom", "head", "--json").output)["type_code"] == ""
+    one_line_error(sim(state, "write-eeprom", "reel0", "nope=1"), 2, "no reel EEPROM field")
+
+
+def test_update_firmware_good_and_bad(state, tmp_path):
+    good = tmp_path / "good.bin"
+    good.write_bytes(images.firmware_image("r800new", size=16384, seed=8))
+    result = sim(state, "update-firmware", str(good))
+    assert result.exit_code == 0, result.output
+    assert "r776sim -> r800new" in result.output
+    assert json.loads(sim(state, "status", "--json").output)["errors"] == []
+    bad = tmp_path / "bad.bin"
+    data = bytearray(good.read_bytes())
+    data[1000] ^= 1
+    bad.write_bytes(bytes(data))
+    one_line_error(sim(state, "update-firmware", str(bad)), 1, "would be refused")
+    assert "r800new" in sim(state, "gcode", "M115").output
+
+
+@pytest.mark.parametrize("args,status,words", [
+    (["--device", "bogus", "status"], 2, "unknown device"),
+    (["--device", "serial:/dev/nonexistent-robox", "status"], 1, "cannot open"),
+    (["--device", "serial:", "status"], 2, "needs a path"),
+])
+def test_device_selection_errors(args, status, words):
+    one_line_error(run(*args), status, words)
+
+
+def test_usb_without_a_printer_says_so():
+    result = run("--device", "usb", "status")
+    assert result.exit_code == 1
+    assert "no Robox is attached" in result.stderr or "no USB backend" in result.stderr
+
+
+def test_send_job_bad_input(state, tmp_path):
+    one_line_error(sim(state, "send-job", str(tmp_path / "missing.gcode")), 1, "no such file")
+    binary = tmp_path / "photo.jpg"
+    binary.write_bytes(b"\xff\xd8\xff\xe0" + bytes(100))
+    one_line_error(sim(state, "send-job", str(binary)), 1, "not a G-code file")
+    one_line_error(sim(state, "send-job", str(EXAMPLE), "--id", "x" * 17), 2, "longer than 16")
+
+
+# --------------------------------------------------------- the client API
+def connect(virtual: VirtualPrinter) -> Printer:
+    backend = VirtualRoboxBackend(virtual)
+    device = usb.core.find(idVendor=0x16D0, idProduct=0x081B, backend=backend)
+    return Printer(UsbTransport(device), idle=lambda s: virtual.run_until(lambda: False, 5))
+
+
+@pytest.fixture
+def virtual():
+    v = VirtualPrinter()
+    v.settle()
+    return v
+
+
+def test_resume_after_a_disconnect_at_every_chunk(virtual):
+    job = prepare_job(circle_job(150, heat=False))
+    chunks = len(job) // 512
+    assert chunks >= 5
+    clean = VirtualPrinter()
+    clean.settle()
+    connect(clean).send_file(job, "resume", run=False)
+    expected = clean.firmware.file_system.read_committed(b"resume".ljust(16, b"\0"))
+    assert expected == job
+    for cut in range(chunks):
+        v = VirtualPrinter()
+        v.settle()
+        printer = connect(v)
+
+        def progress(done, total, v=v, cut=cut):
+            if done >= (cut + 1) * 512:
+                v.usb.disconnect()
+
+        with pytest.raises(Disconnected):
+            printer.send_file(job, "resume", run=False, progress=progress)
+        v.usb.connect()
+        connect(v).send_file(job, "resume", run=False, resume=True)
+        stored = v.firmware.file_system.read_committed(b"resume".ljust(16, b"\0"))
+        assert stored == expected, f"cut after chunk {cut}"
+
+
+def test_an_error_in_an_ack_is_named_in_words(virtual):
+    printer = connect(virtual)
+    virtual.hw.card.remove()
+    with pytest.raises(PrinterError, match="SD card error"):
+        printer.send_file(b"G28\r", "nocard")
+
+
+class Spy:
+    """A transport that records the traffic and checks stop-and-wait."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.pending = b""
+        self.writes = 0
+
+    def write(self, data, timeout_ms=5000):
+        assert self.pending == b"", "a command was sent before the last reply was read"
+        self.pending = b"?"
+        self.writes += 1
+        self.inner.write(data, timeout_ms)
+        self.reply = b""
+
+    def read(self, limit, timeout_ms=5000):
+        data = self.inner.read(limit, timeout_ms)
+        self.reply += data
+        if reply_length(self.reply) == len(self.reply):
+            self.pending = b""
+        return data
+
+    def close(self):
+        self.inner.close()
+
+
+def test_the_host_never_has_two_commands_in_flight(virtual):
+    printer = connect(virtual)
+    spy = Spy(printer.transport)
+    printer.transport = spy
+    printer.send_file(prepare_job(circle_job(40, heat=False)), "spy")
+    printer.status()
+    printer.read_eeprom_fields("reel0")
+    printer.gcode("M105\r")
+    assert spy.writes > 5 and spy.pending == b""
+    assert virtual.firmware.errors.bits == 0  # no USB_TX: nothing was clobbered
+
+
+def test_over_a_real_pty(tmp_path):
+    state = tmp_path / "printer"
+    proc = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
+                             str(state)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        path = proc.stdout.readline().strip()
+        device = f"serial:{path}"
+        status = json.loads(run("--device", device, "status", "--json").output)
+        assert status["eeproms"]["reel0"] == "valid"
+        result = run("--device", device, "send-job", str(EXAMPLE), "--wait", "--json")
+        assert result.exit_code == 0, result.output
+        summary = json.loads(result.output)
+        assert summary["errors"] == []
+        assert summary["id"] in json.loads(run("--device", device, "files", "--json").output)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0 and "Traceback" not in err
