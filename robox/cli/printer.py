@@ -110,7 +110,7 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool,
     lines = job.count(b"\r")
     quiet = as_json or not sys.stderr.isatty()
     with device(ctx) as printer:
-        before = _reels(printer)
+        before = _reels(printer) if wait else {}
         started = time.monotonic()
         sim = getattr(printer, "virtual", None)
         sim_start = sim.firmware.clock.now if sim else None

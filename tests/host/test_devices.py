@@ -1,0 +1,98 @@
+"""Device selection and USB faults, with virtual printers standing in for attached ones."""
+
+import errno
+
+import pytest
+import usb.core
+from click.testing import CliRunner
+
+from robox.cli import cli
+from robox.host import devices
+from robox.host.transport import PermissionDenied, UsbTransport
+from robox.sim.printer import VirtualPrinter
+from robox.sim.usb_backend import VirtualRoboxBackend
+from tests.cli.test_sdcard_cli import one_line_error
+
+
+def attached(unique_id: bytes):
+    virtual = VirtualPrinter()
+    virtual.hw.flash.write_page(511, unique_id.ljust(256, b"\0"))
+    virtual.firmware.power_up()
+    virtual.settle()
+    backend = VirtualRoboxBackend(virtual)
+    return usb.core.find(idVendor=0x16D0, idProduct=0x081B, backend=backend), virtual
+
+
+@pytest.fixture
+def two(monkeypatch):
+    found = [attached(b"RBX-AAA-0001"), attached(b"RBX-BBB-0002")]
+    monkeypatch.setattr(devices, "_usb_devices", lambda: [d for d, _ in found])
+    return found
+
+
+def run(*args):
+    return CliRunner().invoke(cli, list(args), catch_exceptions=False)
+
+
+def test_printers_lists_unique_ids_and_revisions(two):
+    out = run("printers").output
+    assert "RBX-AAA-0001  firmware r776sim" in out and "RBX-BBB-0002" in out
+
+
+def test_several_printers_need_a_choice(two):
+    one_line_error(run("--device", "usb", "status"), 1, "2 printers are attached")
+    assert run("--device", "usb:RBX-BBB", "files").exit_code == 0
+    one_line_error(run("--device", "usb:RBX-CCC", "status"), 1, "no attached printer")
+    one_line_error(run("--device", "usb:RBX", "status"), 1, "matches 2 printers")
+
+
+def test_one_printer_needs_no_choice(monkeypatch):
+    device, _ = attached(b"RBX-ONLY")
+    monkeypatch.setattr(devices, "_usb_devices", lambda: [device])
+    assert "FIRMWARE_NAME" in run("--device", "usb", "gcode", "M115").output
+
+
+def test_the_environment_chooses_the_device(two, monkeypatch):
+    monkeypatch.setenv("ROBOX_DEVICE", "usb:RBX-AAA")
+    assert run("files").exit_code == 0
+
+
+def test_no_printer_attached(monkeypatch):
+    monkeypatch.setattr(devices, "_usb_devices", lambda: [])
+    one_line_error(run("status"), 1, "no Robox is attached")
+
+
+class Locked(VirtualRoboxBackend):
+    def claim_interface(self, dev_handle, intf):
+        raise usb.core.USBError("Access denied (insufficient permissions)", -3, errno.EACCES)
+
+
+def test_permission_denied_names_the_udev_rule():
+    backend = Locked(VirtualPrinter())
+    device = usb.core.find(idVendor=0x16D0, idProduct=0x081B, backend=backend)
+    with pytest.raises(PermissionDenied, match=r"60-robox\.rules"):
+        UsbTransport(device)
+
+
+def test_unplugged_mid_upload_says_how_to_resume(monkeypatch, tmp_path):
+    device, virtual = attached(b"RBX-PULL")
+    monkeypatch.setattr(devices, "_usb_devices", lambda: [device])
+    writes = [0]
+    original = VirtualRoboxBackend.bulk_write
+
+    def pull_the_cable(self, *args):
+        writes[0] += 1
+        if writes[0] == 6:  # errors query, start, chunks 0..2, then chunk 3
+            self.printer.usb.disconnect()
+        return original(self, *args)
+
+    monkeypatch.setattr(VirtualRoboxBackend, "bulk_write", pull_the_cable)
+    job = tmp_path / "big.gcode"
+    job.write_text("G1 X1 E0.1 F600\n" * 400)
+    one_line_error(run("--device", "usb", "send-job", str(job)), 1, "--resume")
+    virtual.usb.connect()
+    monkeypatch.setattr(VirtualRoboxBackend, "bulk_write", original)
+    result = run("--device", "usb", "send-job", str(job), "--resume")
+    assert result.exit_code == 0, result.output
+    files = virtual.firmware.file_system.file_list()
+    assert files[-1].startswith(b"big_")
