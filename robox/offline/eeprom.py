@@ -9,10 +9,9 @@ chip. `show` and `fsck` only read the file.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 from robox.errors import ImageError, NotFoundError, RoboxError, UsageError
-from robox.fileio import write_atomically
+from robox.fileio import read_input, write_atomically
 from robox.firmware.eeprom import Eeproms, Status
 from robox.firmware.error_flags import ErrorFlags
 from robox.formats import eeprom as fmt
@@ -26,12 +25,7 @@ PASS_S = 0.001
 
 
 def read_dump(path: str | os.PathLike) -> bytes:
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise NotFoundError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ImageError(f"{path}: is a directory, not an EEPROM dump") from None
+    data = read_input(path, "an EEPROM dump")
     if len(data) != CHIP_SIZE:
         raise ImageError(f"{path}: {len(data)} bytes; an EEPROM dump is {CHIP_SIZE} bytes")
     return data

@@ -5,9 +5,9 @@ from __future__ import annotations
 import os
 import re
 import stat
-from pathlib import Path
 
-from robox.errors import ImageError, NotFoundError, RoboxError, UsageError
+from robox import fileio
+from robox.errors import ImageError, RoboxError, UsageError
 from robox.fileio import write_atomically
 from robox.formats import firmware as fw
 
@@ -23,14 +23,7 @@ def parse_offset(text: str) -> int:
 
 
 def read_input(path: str | os.PathLike) -> bytes:
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise NotFoundError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ImageError(f"{path}: is a directory") from None
-    except PermissionError:
-        raise ImageError(f"{path}: not readable (permission denied)") from None
+    data = fileio.read_input(path)
     if not data:
         raise ImageError(f"{path}: the file is empty")
     return data

@@ -89,6 +89,14 @@ def load_as_printer(chip: EepromChip) -> tuple[Status, bytes]:
     return eeproms.status(REEL), eeproms.states[REEL].data
 
 
+def unplugged(k: int, lands: bool) -> Run:
+    """The run, stopped just after the chip was pulled out at change transaction k."""
+    run = start(EepromFaultPlan(unplug_at=start().base + k, write_lands=lands))
+    while run.chip.plugged:
+        run.passes(1)
+    return run
+
+
 def cases(kinds):
     for k, kind in enumerate(kinds, 1):
         yield k, False
@@ -106,10 +114,7 @@ def test_unplug_at_every_transaction_then_power_up_loads_old_or_new(clean):
     new, kinds = clean
     problems = []
     for k, lands in cases(kinds):
-        probe = start()
-        run = start(EepromFaultPlan(unplug_at=probe.base + k, write_lands=lands))
-        while run.chip.plugged:
-            run.passes(1)
+        run = unplugged(k, lands)
         status, data = load_as_printer(run.chip)
         if status != Status.VALID or data not in (old_data(), new):
             problems.append(f"unplug at transaction {k} (lands={lands}): {status.name}, "
@@ -121,9 +126,7 @@ def test_unplug_at_every_transaction_then_timeout_and_reinsert(clean):
     new, kinds = clean
     problems = []
     for k, lands in cases(kinds):
-        run = start(EepromFaultPlan(unplug_at=start().base + k, write_lands=lands))
-        while run.chip.plugged:
-            run.passes(1)
+        run = unplugged(k, lands)
         run.passes(int(TIMEOUT_S / PASS_S) + 2)
         if run.eeproms.status(REEL) != Status.NOT_PRESENT:
             problems.append(f"{k}: still {run.eeproms.status(REEL).name} after the timeout")
@@ -142,9 +145,7 @@ def test_a_quick_reinsert_at_every_transaction_completes_the_change(clean):
     new, kinds = clean
     problems = []
     for k, lands in cases(kinds):
-        run = start(EepromFaultPlan(unplug_at=start().base + k, write_lands=lands))
-        while run.chip.plugged:
-            run.passes(1)
+        run = unplugged(k, lands)
         run.passes(20)  # 20 ms out of the socket: less than the timeout
         run.chip.plug()
         while not run.eeproms.settled(REEL):

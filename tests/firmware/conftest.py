@@ -20,3 +20,13 @@ def errors() -> ErrorFlags:
 @pytest.fixture
 def fs(card: SdCard, errors: ErrorFlags) -> FileSystem:
     return FileSystem(card, errors)
+
+
+@pytest.fixture
+def wire():
+    """A settled in-memory virtual printer spoken to in raw frames."""
+    from tests.firmware.wire import Wire
+
+    w = Wire()
+    w.printer.settle()
+    return w

@@ -5,14 +5,7 @@ import pytest
 from robox.firmware.gcode import IDLE_ABORT_S, IDLE_PAUSE_S, PauseState
 from robox.formats.protocol import ErrorBit
 from tests.firmware.test_protocol import status_fields
-from tests.firmware.wire import Wire, circle_job, hexn, ident, job_text
-
-
-@pytest.fixture
-def wire():
-    w = Wire()
-    w.printer.settle()
-    return w
+from tests.firmware.wire import circle_job, hexn, ident, job_text
 
 
 def test_a_job_prints_while_it_uploads_and_completes(wire):

@@ -11,15 +11,13 @@ from robox.formats.firmware import to_sd_text, word_sum
 from robox.formats.protocol import ErrorBit
 from robox.hardware.flash import FlashFaultPlan
 from robox.sim import images
-from tests.firmware.wire import Wire, float8, ident, job_text
+from tests.firmware.wire import float8, ident, job_text
 
 
 @pytest.fixture
-def wire():
-    w = Wire()
-    w.printer.settle()
-    w.clear()
-    return w
+def wire(wire):
+    wire.clear()
+    return wire
 
 
 def run_lines(wire, *lines: str) -> None:

@@ -3,17 +3,8 @@ resynchronisation, the error flags and the one-reply-in-flight rule."""
 
 import re
 
-import pytest
-
 from robox.formats.protocol import ErrorBit
-from tests.firmware.wire import Wire, float8, hexn, ident
-
-
-@pytest.fixture
-def wire():
-    w = Wire()
-    w.printer.settle()
-    return w
+from tests.firmware.wire import float8, hexn, ident
 
 
 def test_ack_is_64_characters_of_error_bits(wire):

@@ -2,9 +2,6 @@
 (the hardware's code path) and through a real pty."""
 
 import json
-import signal
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -20,6 +17,7 @@ from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
 from tests.cli.test_sdcard_cli import one_line_error
 from tests.firmware.wire import circle_job
+from tests.sim import serving
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "robox" / "data" / "example.gcode"
@@ -64,15 +62,8 @@ def test_status_files_gcode_errors(state):
 @pytest.fixture
 def served(tmp_path):
     """A virtual printer that keeps running between commands: sim serve on a pty."""
-    proc = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
-                             str(tmp_path / "served")], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        yield f"serial:{proc.stdout.readline().strip()}"
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
-        assert proc.returncode == 0 and "Traceback" not in err
+    with serving.served(tmp_path / "served") as path:
+        yield f"serial:{path}"
 
 
 def test_pause_resume_abort_and_run_job(served):
@@ -231,22 +222,11 @@ def test_the_host_never_has_two_commands_in_flight(virtual):
     assert virtual.firmware.errors.bits == 0  # no USB_TX: nothing was clobbered
 
 
-def test_over_a_real_pty(tmp_path):
-    state = tmp_path / "printer"
-    proc = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
-                             str(state)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        path = proc.stdout.readline().strip()
-        device = f"serial:{path}"
-        status = json.loads(run("--device", device, "status", "--json").output)
-        assert status["eeproms"]["reel0"] == "valid"
-        result = run("--device", device, "send-job", str(EXAMPLE), "--wait", "--json")
-        assert result.exit_code == 0, result.output
-        summary = json.loads(result.output)
-        assert summary["errors"] == []
-        assert summary["id"] in json.loads(run("--device", device, "files", "--json").output)
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
-    assert proc.returncode == 0 and "Traceback" not in err
+def test_over_a_real_pty(served):
+    status = json.loads(run("--device", served, "status", "--json").output)
+    assert status["eeproms"]["reel0"] == "valid"
+    result = run("--device", served, "send-job", str(EXAMPLE), "--wait", "--json")
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.output)
+    assert summary["errors"] == []
+    assert summary["id"] in json.loads(run("--device", served, "files", "--json").output)

@@ -2,9 +2,6 @@
 
 import json
 import os
-import signal
-import subprocess
-import sys
 import time
 
 import pytest
@@ -17,6 +14,7 @@ from robox.cli import cli
 from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
 from tests.firmware.wire import Wire, circle_job, ident
+from tests.sim import serving
 
 
 def run_cli(*args):
@@ -109,27 +107,16 @@ def read_ok(port: serial.Serial, deadline: float = 10.0) -> bytes:
 
 def test_robox_cli_sim_serve_on_a_pty_for_a_pronterface_host(tmp_path):
     state = tmp_path / "printer"
-    proc = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
-                             str(state)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        path = proc.stdout.readline().strip()
-        assert path.startswith("/dev/")
-        with serial.Serial(path, 115200, timeout=0.2) as port:
-            port.write(b"N1 M110 N0*125\n")
+    with serving.served(state) as path, serial.Serial(path, 115200, timeout=0.2) as port:
+        port.write(b"N1 M110 N0*125\n")
+        assert read_ok(port) == b"ok\r\n"
+        port.write(b"M115\n")
+        assert read_ok(port) == b"FIRMWARE_NAME: robox r776sim\r\nok\r\n"
+        for line in (b"G28\n", b"G1 X20 Y20 F6000\n", b"M400\n"):
+            port.write(line)
             assert read_ok(port) == b"ok\r\n"
-            port.write(b"M115\n")
-            assert read_ok(port) == b"FIRMWARE_NAME: robox r776sim\r\nok\r\n"
-            for line in (b"G28\n", b"G1 X20 Y20 F6000\n", b"M400\n"):
-                port.write(line)
-                assert read_ok(port) == b"ok\r\n"
-            port.write(b"M114\n")
-            assert read_ok(port).startswith(b"X:20.000000 Y:20.000000")
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
-    assert proc.returncode == 0, err
-    assert "Traceback" not in err
+        port.write(b"M114\n")
+        assert read_ok(port).startswith(b"X:20.000000 Y:20.000000")
     assert run_cli("sdcard", "fsck", str(state / "sdcard.img")).exit_code == 0
     assert run_cli("eeprom", "fsck", str(state / "reel0.eeprom")).exit_code == 0
     assert os.path.getsize(state / "flash.bin") == 131072

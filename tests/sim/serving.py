@@ -1,0 +1,21 @@
+"""Start `robox-cli sim serve` as a real subprocess and stop it as a user would."""
+
+import contextlib
+import signal
+import subprocess
+import sys
+
+
+@contextlib.contextmanager
+def served(state):
+    """Yields the pty path; on exit sends SIGTERM and checks a clean stop."""
+    proc = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
+                             str(state)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        yield proc.stdout.readline().strip()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
