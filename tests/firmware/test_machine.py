@@ -237,3 +237,20 @@ def test_a_tool_change_applies_the_heads_tool_offsets(wire):
 def test_set_d_filament_info(wire):
     wire.ok(b"\xc9" + float8(2.85) + float8(0.9))
     assert wire.fw.position.filament["D"] == [pytest.approx(2.85), pytest.approx(0.9)]
+
+
+def test_a_thermistor_fault_sets_its_error_and_turns_that_heater_off(wire):
+    run_lines(wire, "M104 S200", "M140 S60")
+    wire.printer.hw.machine.heaters["bed"].thermistor_ok = False
+    wire.printer.run_until(lambda: False, 0.1)
+    assert wire.fw.errors.is_set(ErrorBit.BED_THERMISTOR)
+    assert wire.fw.heaters.channels["bed"].mode == 0
+    assert wire.fw.heaters.channels["nozzle0"].mode == 1
+
+
+def test_losing_the_head_eeprom_turns_every_heater_off(wire):
+    run_lines(wire, "M104 S200", "M140 S60")
+    wire.printer.hw.eeprom_bus.sockets[EepromIndex.HEAD].unplug()
+    wire.printer.run_until(lambda: wire.fw.eeproms.status(EepromIndex.HEAD) == 0, 1.0)
+    assert not wire.fw.heaters.any_on()
+    assert all(h.duty == 0 for h in wire.printer.hw.machine.heaters.values())
