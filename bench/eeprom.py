@@ -66,18 +66,33 @@ def propagate_one_byte() -> None:
 
 
 def steps_per_second() -> None:
-    clock, _, eeproms = rig(True)
+    clock, chips, eeproms = rig(True)
     for index in EepromIndex:
         settle(clock, eeproms, index)
     passes = 200_000
+    before = sum(chip.transactions for chip in chips)
     start = time.perf_counter()
     for _ in range(passes):
         eeproms.maintain()
         clock.advance(PASS_S)
     elapsed = time.perf_counter() - start
-    print("maintain() with three VALID EEPROMs verifying (3 transactions per call):")
+    transactions = sum(chip.transactions for chip in chips) - before
+    print("maintain() with three settled EEPROMs (their verify reads every 10 ms of "
+          "simulated time):")
     print(f"  {passes / elapsed:,.0f} maintain calls/s of wall time, "
-          f"{3 * passes / elapsed:,.0f} EEPROM steps/s")
+          f"{transactions / elapsed:,.0f} chip transactions/s")
+    eeproms.set_float(EepromIndex.REEL0, "remaining_filament", 1.0)
+    start, passes = time.perf_counter(), 0
+    before = sum(chip.transactions for chip in chips)
+    while not eeproms.settled(EepromIndex.REEL0):
+        eeproms.maintain()
+        clock.advance(PASS_S)
+        passes += 1
+    elapsed = time.perf_counter() - start
+    transactions = sum(chip.transactions for chip in chips) - before
+    print("maintain() while a reel is rewritten (one transaction per pass for it):")
+    print(f"  {passes / elapsed:,.0f} maintain calls/s, {transactions / elapsed:,.0f} "
+          "chip transactions/s")
 
 
 if __name__ == "__main__":
