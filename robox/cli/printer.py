@@ -12,6 +12,7 @@ import click
 
 from robox.cli.common import emit_json
 from robox.errors import NotFoundError, RoboxError, UsageError
+from robox.formats.firmware import image_revision
 from robox.formats.protocol import error_names
 from robox.host.client import EEPROMS, looks_like_gcode, prepare_job
 from robox.host.devices import list_printers, open_printer
@@ -293,6 +294,10 @@ def update_firmware_cmd(ctx, bin_file: str) -> None:
             after_printer = printer.update_firmware(
                 image, progress=lambda done, total: bar.update(done - bar.pos))
         after = after_printer.revision()
+    declared = image_revision(image)
+    if declared is not None and after != declared:
+        raise RoboxError(f"the printer came back with firmware {after}, but the image is "
+                         f"{declared}: the update did not take")
     click.echo(f"firmware {before} -> {after}")
 
 

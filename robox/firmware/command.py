@@ -19,7 +19,7 @@ Choices where protocol.md is silent (documented in docs/firmware-model.md):
 from __future__ import annotations
 
 from robox.formats import float8
-from robox.formats.protocol import ERROR_REPORT_BITS, ErrorBit
+from robox.formats.protocol import ErrorBit
 from robox.formats.sdcard import ID_SIZE
 
 RECEIVE_BUFFER = 1024
@@ -358,5 +358,3 @@ def strip_line_number(line: bytes) -> bytes:
         text = text[:star].rstrip()
     return text
 
-
-ACK_LENGTH = 1 + ERROR_REPORT_BITS

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import struct
 
 import numpy as np
 
@@ -72,11 +71,3 @@ def reel_eeprom(remaining_mm: float = 240000.0) -> bytes:
                         ("material_type", "P"), ("remaining_filament", repr(remaining_mm))):
         fmt.set_field(data, "reel", name, value)
     return fmt.chip_image(bytes(data))
-
-
-def hours_bytes(flash: bytes) -> bytes:
-    return flash[HOURS_PAGE * PAGE_SIZE : HOURS_PAGE * PAGE_SIZE + 8]
-
-
-def image_anti_checksum(image: bytes) -> int:
-    return struct.unpack_from("<I", image, DEFAULT_OFFSET)[0]

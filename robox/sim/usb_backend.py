@@ -16,7 +16,6 @@ import errno
 import usb.backend
 import usb.core
 
-from robox.formats.protocol import ERROR_REPORT_BITS
 from robox.sim.printer import VirtualPrinter
 
 VENDOR_ID = 0x16D0
@@ -196,5 +195,3 @@ class VirtualRoboxBackend(usb.backend.IBackend):
     def intr_read(self, dev_handle, ep, intf, buff, timeout):
         raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
 
-
-ACK_LENGTH = 1 + ERROR_REPORT_BITS
