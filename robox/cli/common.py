@@ -49,5 +49,8 @@ class RoboxGroup(click.Group):
             fail(f"{where}{exc.strerror or exc}")
 
 
+json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+
+
 def emit_json(data: object) -> None:
     click.echo(json.dumps(data, indent=2))

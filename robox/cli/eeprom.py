@@ -6,11 +6,10 @@ import sys
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, emit_json
+from robox.cli.common import EXIT_PROBLEM, emit_json, json_option
 from robox.fileio import write_atomically
 from robox.offline import eeprom as dumps
 
-json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 set_option = click.option("--set", "assignments", multiple=True, metavar="FIELD=VALUE",
                           help="Set a field (repeatable), e.g. --set filament_diameter=1.75")
 KINDS = click.Choice(["reel", "head"])

@@ -6,11 +6,10 @@ import sys
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, emit_json
+from robox.cli.common import EXIT_PROBLEM, emit_json, json_option
 from robox.formats.firmware import DEFAULT_OFFSET
 from robox.offline import firmware as images
 
-json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 offset_option = click.option("--offset", "offset_text", default=f"{DEFAULT_OFFSET:#x}",
                              show_default=True, help="Where the anti-checksum word lives (hex).")
 

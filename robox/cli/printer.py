@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from robox.cli.common import emit_json
+from robox.cli.common import emit_json, json_option
 from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.firmware import image_revision
 from robox.formats.protocol import error_names
@@ -20,7 +20,6 @@ from robox.host.transport import Disconnected
 from robox.offline.eeprom import parse_assignments
 from robox.offline.firmware import read_input
 
-json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 WHICH = click.Choice(list(EEPROMS))
 POLL_S = 0.5
 

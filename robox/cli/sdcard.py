@@ -7,12 +7,10 @@ from pathlib import Path
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, emit_json
+from robox.cli.common import EXIT_PROBLEM, emit_json, json_option
 from robox.errors import UsageError
 from robox.fileio import write_atomically
 from robox.offline import sdcard as images
-
-json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 
 
 @click.group()

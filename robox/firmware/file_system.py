@@ -38,7 +38,9 @@ from robox.formats.sdcard import (
     Verdict,
     decode_copy,
     encode_copy,
+    file_blocks,
     following_block,
+    newest_with_id,
     printer_walk,
     project_walk,
     stamp_generation,
@@ -511,22 +513,16 @@ class FileSystem:
         without touching the open read or the last job. None if there is none."""
         if not self._ensure_mounted():
             return None
-        lookup = bytes(file_id)[:ID_SIZE].ljust(ID_SIZE, b"\0")
-        d = self._dir
-        for index in reversed(d.ring()):
-            slot = d.slots[index]
-            if slot.id != lookup:
-                continue
-            parts, block, remaining = [], slot.start_block, slot.length
-            while remaining > 0:
-                data = self._read_block(block)
-                if data is None:
-                    return None
-                parts.append(data[: min(BLOCK_SIZE, remaining)])
-                remaining -= BLOCK_SIZE
-                block = following_block(block, 1, self.card.capacity)
-            return b"".join(parts)
-        return None
+        index = newest_with_id(self._dir, bytes(file_id)[:ID_SIZE].ljust(ID_SIZE, b"\0"))
+        if index is None:
+            return None
+        parts = []
+        for block, size in file_blocks(self._dir.slots[index], self.card.capacity):
+            data = self._read_block(block)
+            if data is None:
+                return None
+            parts.append(data[:size])
+        return b"".join(parts)
 
     def _reading_file_being_written(self) -> bool:
         return self._writing and self._reader is not None and \

@@ -168,6 +168,20 @@ def following_block(block: int, count: int, capacity: int) -> int:
     return (block - FILE_START_BLOCK + count) % data_blocks + FILE_START_BLOCK
 
 
+def file_blocks(slot: FileSlot, capacity: int):
+    """(block, bytes of the file in it) for each block of a file, wrap included."""
+    block, remaining = slot.start_block, slot.length
+    while remaining > 0:
+        yield block, min(BLOCK_SIZE, remaining)
+        remaining -= BLOCK_SIZE
+        block = following_block(block, 1, capacity)
+
+
+def newest_with_id(d: Directory, file_id: bytes) -> int | None:
+    """Slot of the newest committed file whose 16-byte id is `file_id`."""
+    return next((i for i in reversed(d.ring()) if d.slots[i].id == file_id), None)
+
+
 def start_for(block: int, capacity: int) -> int:
     """Where a new file starts if the previous one ended before `block`."""
     if block + CONTIGUOUS_BLOCKS > capacity:  # fewer than 1024 blocks remain

@@ -24,9 +24,11 @@ from robox.formats.sdcard import (
     NO_JOB,
     Directory,
     card_blocks,
+    file_blocks,
     following_block,
     id_text,
     make_id,
+    newest_with_id,
     trailer_generation,
 )
 from robox.hardware.sdcard import SdCard
@@ -174,26 +176,15 @@ def list_image(path: str | os.PathLike) -> dict:
         }
 
 
-def _read_slot(card: SdCard, d: Directory, index: int) -> bytes:
-    slot = d.slots[index]
-    parts = []
-    block = slot.start_block
-    remaining = slot.length
-    while remaining > 0:
-        parts.append(card.read_block(block)[: min(BLOCK_SIZE, remaining)])
-        remaining -= BLOCK_SIZE
-        block = following_block(block, 1, card.capacity)
-    return b"".join(parts)
-
-
 def get_file(path: str | os.PathLike, file_id: str) -> bytes:
     """The newest committed file with that id, byte-exact. Never writes the image."""
     wanted = make_id(file_id)
     with open_card(path) as card:
         _, d = _mounted(path, card)
-        for index in reversed(d.ring()):
-            if d.slots[index].id == wanted:
-                return _read_slot(card, d, index)
+        index = newest_with_id(d, wanted)
+        if index is not None:
+            return b"".join(card.read_block(block)[:size]
+                            for block, size in file_blocks(d.slots[index], card.capacity))
     raise NotFoundError(f"{path}: no file with id {id_text(wanted)!r}")
 
 
