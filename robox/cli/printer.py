@@ -14,7 +14,7 @@ from robox.cli.common import emit_json, json_option
 from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.firmware import image_revision
 from robox.formats.protocol import error_names
-from robox.host.client import EEPROMS, looks_like_gcode, prepare_job
+from robox.host.client import EEPROMS, catch_up_lines, looks_like_gcode, prepare_job
 from robox.host.devices import list_printers, open_printer
 from robox.host.transport import Disconnected
 from robox.offline.eeprom import parse_assignments
@@ -123,14 +123,15 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool,
                 sent[0] = done
 
             try:
-                printer.send_file(job, name, resume=resume, progress=progress)
+                printer.send_file(job, name, resume=resume, progress=progress,
+                                  notice=lambda message: click.echo(message, err=True))
             except Disconnected:
                 raise RoboxError(f"the printer was disconnected after {sent[0]} of {len(job)}"
                                  f" bytes; run the same command with --resume to continue"
                                  ) from None
         summary = {"id": name, "bytes": len(job), "lines": lines}
         if wait:
-            _follow(printer, name, lines, quiet)
+            _follow(printer, name, job, quiet)
             after = _reels(printer)
             summary["print_time_s"] = round(time.monotonic() - started, 1)
             if sim is not None:
@@ -160,7 +161,20 @@ def _reels(printer) -> dict:
     return remaining
 
 
-def _follow(printer, name: str, lines: int, quiet: bool) -> None:
+def _follow(printer, name: str, job: bytes, quiet: bool) -> None:
+    """Follow the print to its end. Asking for the error report on every poll keeps the
+    printer counting a host as connected, as AutoMaker did (no flush-needed or slip
+    pauses that a host handles). A pause that is not the upload's catch-up is reported
+    once and waited out."""
+    lines = job.count(b"\r")
+    whole = catch_up_lines(job)
+    reported = set()
+
+    def notice(message: str) -> None:
+        if message not in reported:
+            reported.add(message)
+            click.echo(message, err=True)
+
     with click.progressbar(length=lines, label=f"printing {name}", file=sys.stderr,
                            hidden=quiet) as bar:
         shown = 0
@@ -171,6 +185,10 @@ def _follow(printer, name: str, lines: int, quiet: bool) -> None:
                 return
             bar.update(max(0, status.line - shown))
             shown = max(shown, status.line)
+            if status.pause in ("pausing", "paused"):
+                printer.resume_if_caught_up(name, whole, notice)
+            else:
+                printer.errors()
             printer.idle(POLL_S)
 
 

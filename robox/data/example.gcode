@@ -3,7 +3,7 @@
 
 M140 S60 ; bed
 M104 S210 ; nozzle
-G28 ; home
+G28 X Y Z ; home
 M190 S60
 M109 S210
 G90

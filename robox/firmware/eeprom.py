@@ -41,6 +41,8 @@ from robox.hardware.eeprom import EepromBus
 
 #: No acknowledged transaction for this long: the EEPROM is gone.
 TIMEOUT_S = 0.2
+#: Filament and head-hours bookkeeping period (0.002 h).
+UPDATE_PERIOD_S = 7.2
 QUIET_STEP_S = 0.01
 
 ERROR_BIT = {
@@ -88,13 +90,41 @@ class Eeproms:
         self.on_valid: list[Callable[[EepromIndex], None]] = []
         #: Called with the EepromIndex when a VALID EEPROM is lost.
         self.on_lost: list[Callable[[EepromIndex], None]] = []
+        #: The firmware that owns this object (None when run alone, as by `eeprom set`).
+        self.firmware = None
         self.initialise()
 
     def initialise(self) -> None:
         now = self.clock.now
         self.states = [EepromState(index, last_ack=now) for index in EepromIndex]
+        self.previous = [Status.NOT_PRESENT] * 3
+        self.update_due = now + UPDATE_PERIOD_S
 
     def maintain(self) -> None:
+        self._maintain_chips()
+        fw = self.firmware
+        if fw is None:
+            return
+        now = self.clock.now
+        statuses = [s.status for s in self.states]
+        appeared = [s == Status.VALID and p != Status.VALID
+                    for s, p in zip(statuses, self.previous, strict=True)]
+        if appeared[EepromIndex.HEAD]:
+            fw.file_system.check_for_head_change(self.head_dual_material())
+        if any(appeared):
+            fw.heaters.targets_from_reel()
+            fw.position.filament_info_from_reel()
+        if now - self.states[EepromIndex.HEAD].last_ack >= TIMEOUT_S:
+            fw.heaters.shut_down_head_due_to_eeprom()
+        if now >= self.update_due:
+            if fw.heaters.head_hot():
+                self.write_float_at(EepromIndex.HEAD, 0xB8,
+                                    self.float_at(EepromIndex.HEAD, 0xB8, 0.0) + 0.002)
+            fw.position.update_reel_filament_length()
+            self.update_due = now + UPDATE_PERIOD_S
+        self.previous = statuses
+
+    def _maintain_chips(self) -> None:
         now = self.clock.now
         for state in self.states:
             # A settled EEPROM's verify step only reads what it already holds: it is
@@ -160,7 +190,6 @@ class Eeproms:
         state.counter = 0
         state.working_bank = 0
         state.writing = False
-        state.last_ack = self.clock.now
         if was_valid:
             for listener in self.on_lost:
                 listener(state.index)
@@ -173,17 +202,18 @@ class Eeproms:
                 listener(state.index)
 
     # ----------------------------------------------------- buffer changes
-    def _change(self, state: EepromState, data: bytes, offset: int = 0) -> None:
+    def _change(self, state: EepromState, data: bytes, offset: int = 0) -> bool:
         """Write masked bytes into the RAM copy; a real change restarts verification."""
         end = min(offset + len(data), DATA_SIZE)
         new = mask7(data[: max(0, end - offset)])
         if state.buffer[offset:end] == new:
-            return
+            return False
         state.buffer[offset:end] = new
         state.buffer[DATA_SIZE:BANK_SIZE] = struct.pack("<I", eeprom_crc(state.data))
         state.counter = 0
         state.writing = False
         state.verified_banks = 0
+        return True
 
     # ----------------------------------------------------------- host side
     def status(self, index: EepromIndex) -> Status:
@@ -200,8 +230,11 @@ class Eeproms:
         if state.status != Status.VALID:
             self.errors.set(ERROR_BIT[index])
             return False
-        if address < DATA_SIZE:
-            self._change(state, data, address)
+        if address < DATA_SIZE and self._change(state, data, address) and \
+                index != EepromIndex.HEAD and self.firmware is not None:
+            # a reel's new contents take effect at once, as when a reel appears
+            self.firmware.heaters.targets_from_reel()
+            self.firmware.position.filament_info_from_reel()
         return True
 
     def host_read(self, index: EepromIndex) -> bytes:
@@ -220,9 +253,98 @@ class Eeproms:
         state.counter = 0
         state.writing = False
         state.verified_banks = 0
-        self._become(state, Status.VALID)
+        # VALID at once; with no chip there, the next pass's timeout takes it away
+        state.status = Status.VALID
 
     # ------------------------------------------------- firmware's own fields
+    def valid(self, index: EepromIndex) -> bool:
+        return self.states[index].status == Status.VALID
+
+    def float_at(self, index: EepromIndex, address: int, default: float) -> float:
+        """The 8-character number at `address`, as strtof reads it; `default` unless VALID."""
+        state = self.states[index]
+        if state.status != Status.VALID:
+            return default
+        return float8.parse(bytes(state.buffer[address : address + 8]).split(b"\0", 1)[0])
+
+    def write_float_at(self, index: EepromIndex, address: int, value: float) -> None:
+        """Store `value` as printf("%f") cut to 8 characters. Like the firmware, this
+        restarts the verify cycle even when the text is unchanged."""
+        state = self.states[index]
+        if state.status != Status.VALID or address > DATA_SIZE - 8:
+            return
+        text = (f"{value:f}" + " " * 8)[:8].encode("ascii")
+        state.buffer[address : address + 8] = text
+        state.buffer[DATA_SIZE:BANK_SIZE] = struct.pack("<I", eeprom_crc(state.data))
+        state.counter = 0
+        state.writing = False
+        state.verified_banks = 0
+
+    def _head_type(self) -> bytes | None:
+        state = self.states[EepromIndex.HEAD]
+        return bytes(state.buffer[:8]) if state.status == Status.VALID else None
+
+    def _head_digit(self, at: int) -> int | None:
+        name = self._head_type()
+        if name is None or name[:2] != b"RX":
+            return None
+        return (name[at] - 0x30) & 0xFF
+
+    def head_dual_material(self) -> bool:
+        name = self._head_type()
+        if name is None:
+            return False
+        if name == b"RBX01-DM":
+            return True
+        digit = self._head_digit(7)
+        return digit is not None and digit & 3 == 2
+
+    def head_has_two_fans(self) -> bool:
+        name = self._head_type()
+        if name is None:
+            return False
+        if name == b"RBXDV-S3":
+            return True
+        digit = self._head_digit(7)
+        return digit is not None and digit & 4 != 0
+
+    def head_has_b_axis(self) -> bool:
+        name = self._head_type()
+        if name is None:
+            return False
+        if name in (b"RBX01-SM", b"RBX01-S2", b"RBX01-DM"):
+            return True
+        digit = self._head_digit(6)
+        return digit is not None and digit & 1 != 0
+
+    def head_has_prtd(self) -> bool:
+        name = self._head_type()
+        if name is None:
+            return False
+        if name == b"RBXDV-S2":
+            return True
+        digit = self._head_digit(6)
+        return digit is not None and digit & 4 == 4
+
+    def head_max_temperature(self) -> float:
+        name = self._head_type()
+        if name is not None:
+            if name in (b"RBX01-S2", b"RBX01-DM"):
+                return 280.0
+            if name == b"RBXDV-S1":
+                return 300.0
+            if name == b"RBXDV-S2":
+                return 500.0
+            if name[:2] == b"RX":
+                t = name[4]
+                if 0x31 <= t <= 0x39:
+                    return float(200 + 5 * (t - 0x31))
+                if 0x41 <= t <= 0x5A:
+                    return float(245 + 5 * (t - 0x41))
+                if 0x61 <= t <= 0x7A:
+                    return float(375 + 5 * (t - 0x61))
+        return 260.0
+
     def get_float(self, index: EepromIndex, name: str) -> float:
         f = field_named(KIND_OF[index], name)
         return float8.parse(self.states[index].buffer[f.offset : f.offset + f.size])

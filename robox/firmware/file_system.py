@@ -576,13 +576,24 @@ class FileSystem:
             return bytes(ID_SIZE), 0
         return self._dir.slots[self._dir.next_file].id, self._expected_chunk()
 
+    def _mounted_quietly(self) -> bool:
+        """Mounted, or mounted now; no card is no error here (nonvolatile data is
+        silently unavailable without one)."""
+        if not self.card.present:
+            return False
+        errors = self.errors.bits
+        mounted = self._ensure_mounted()
+        if not mounted:
+            self.errors.bits = errors
+        return mounted
+
     def nonvolatile(self, index: int) -> int:
-        if not self._ensure_mounted():
+        if not self._mounted_quietly():
             return 0
         return self._dir.nonvolatile[index]
 
     def set_nonvolatile(self, index: int, value: int) -> bool:
-        if not self._ensure_mounted():
+        if not self._mounted_quietly():
             return False
         data = bytearray(self._dir.nonvolatile)
         if data[index] == value:
@@ -590,3 +601,12 @@ class FileSystem:
         data[index] = value
         self._dir = replace(self._dir, nonvolatile=bytes(data))
         return self._update([])
+
+    def check_for_head_change(self, dual_material: bool) -> None:
+        """Nonvolatile byte 1 remembers the head type; when it changes the last job is
+        forgotten, so a button press cannot reprint it with the wrong head."""
+        if not self._mounted_quietly():
+            return
+        if self._dir.nonvolatile[1] != int(dual_material):
+            self._dir = replace(self._dir, last_job=NO_JOB)
+            self.set_nonvolatile(1, int(dual_material))

@@ -1,34 +1,37 @@
 """The job engine: execute and job buffers, G-code lines, run / pause / resume / abort.
 
-Two 1024-byte buffers: the execute buffer (lines from the host) always runs
-before the job buffer (lines read from the job file, a block at a time).
-`maintain_job()` starts at most one line per loop pass. A line that must wait
-(G4, M400, M109, M190, a full motion queue, homing, parking) runs as a
-generator that `maintain_job()` resumes once per pass until it is done, and no
-other line starts meanwhile; the rest of the loop keeps running, so USB keeps
-being answered. This is the printer's "wait by spinning do_everything_else()"
-turned inside out, with the same observable order (docs/firmware-model.md).
-Each yield says what the line waits for, so the loop can jump the clock to it.
+It follows the firmware's `maintain_job()`: each pass first lets "the boss"
+decide on automatic pauses and aborts, then does exactly one thing, in this
+order of priority: finish an abort once motion has stopped; run the next line
+of the execute buffer (the host's lines); park for a pause or unpark after
+one; run the next job line; give up on a line that fills half the job buffer;
+end the job at end of file once motion has stopped; read the next block of
+the file, or pause when the reader has caught up with an upload still under
+way (the job then stays paused until a host resumes it).
+
+On the printer a line that waits (G4, M400, M109, a full motion queue,
+parking) spins `do_everything_else()` inside the call. Here such a line is a
+generator: `maintain_job()` resumes it once per pass, and no other job line
+starts meanwhile, so a host sees the same order. Each yield says what the
+line waits for, so the loop can jump the clock to it. A line a host sends in
+Pronterface mode, or a reporting line in Robox mode, runs the same way but is
+owned by the command object, which reads no more input until it is done
+(docs/firmware-model.md).
 """
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterator
 from dataclasses import dataclass
-from enum import IntEnum
 
+from robox.firmware.cline import Line, strtol
 from robox.formats.protocol import ErrorBit
 
 BUFFER_SIZE = 1024
-LINE_LIMIT = 512
+LINE_LIMIT = BUFFER_SIZE // 2
 IDLE_PAUSE_S = 600.0
 IDLE_ABORT_S = 3600.0
 REPORTING = {105, 111, 112, 113, 114, 115, 119, 503, 997, 999}
-PARK = {"X": 5.0, "Y": 145.0}
-PARK_LIFT = 5.0
-
-_NUMBER = re.compile(rb"[ \t]*([+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)")
 
 
 @dataclass(frozen=True)
@@ -48,47 +51,31 @@ def wait_for(condition, wait: Wait = NEXT_PASS) -> Iterator[Wait]:
         yield wait
 
 
-class PauseState(IntEnum):
-    RUNNING = 0
-    PAUSING = 1
-    PAUSED = 2
-    RESUMING = 3
-    SELFIE = 4
+def line_length(buffer: bytes | bytearray) -> int:
+    """The firmware's get_gcode_line_length: 0 while the first line has no CR or LF
+    (a NUL ends the string); otherwise its length with its terminator (CR LF or LF CR
+    count once) and any blanks after it."""
+    n = len(buffer)
+    i = 0
+    while i < n and buffer[i] not in (0, 0x0A, 0x0D):
+        i += 1
+    if i >= n or buffer[i] == 0:
+        return 0
+    nxt = buffer[i + 1] if i + 1 < n else 0
+    if (buffer[i] == 0x0A and nxt == 0x0D) or (buffer[i] == 0x0D and nxt == 0x0A):
+        i += 1
+    i += 1
+    while i < n and buffer[i] in (0x20, 0x09):
+        i += 1
+    return i
 
 
-def strip_comment(line: bytes) -> bytes:
-    for mark in (b";", b"("):
-        at = line.find(mark)
-        if at >= 0:
-            line = line[:at]
-    return line.strip()
-
-
-def parse_words(line: bytes) -> list[tuple[str, float]]:
-    """Letter and number pairs; a number is read as strtod would (0 if there is none)."""
-    words = []
-    i, n = 0, len(line)
-    while i < n:
-        c = line[i]
-        if 0x41 <= c <= 0x5A or 0x61 <= c <= 0x7A:
-            match = _NUMBER.match(line, i + 1)
-            if match:
-                words.append((chr(c).upper(), float(match.group(1))))
-                i = match.end()
-            else:
-                words.append((chr(c).upper(), 0.0))
-                i += 1
-        else:
-            i += 1
-    return words
-
-
-def first_line(data: bytearray) -> int | None:
-    """Index of the first line terminator (CR or LF), or None."""
-    for i, c in enumerate(data):
-        if c in (0x0A, 0x0D):
-            return i
-    return None
+def is_reporting(text: bytes) -> bool:
+    """The firmware's is_gcode_reporting: the number after the first 'M' anywhere in
+    the text (up to a NUL), whatever line it is on."""
+    text = bytes(text).split(b"\0", 1)[0]
+    at = text.find(b"M")
+    return at >= 0 and strtol(text[at + 1 :]) in REPORTING
 
 
 class Job:
@@ -96,213 +83,183 @@ class Job:
         self.fw = firmware
 
     def initialise(self) -> None:
+        now = self.fw.clock.now
         self.execute_buffer = bytearray()
         self.job_buffer = bytearray()
-        self.running = False
-        self.job_id: bytes | None = None
         self.line_number = 0
-        self.pause_state = PauseState.RUNNING
-        self.waiting_for_data = False
-        self.parked: dict | None = None
-        self.last_activity = self.fw.clock.now
-        self.current: Iterator[Wait] | None = None  # the line (or park) under way
-        self.current_owes_ok = False
-        self.oks_owed = 0  # Pronterface lines queued and not yet answered
+        self.abort_flag = False
+        self.pause = 0  # 0 running, 1 paused, 2 "selfie" pause
+        self.parked = False
+        self.running = False
+        self.idle_since = now
+        self.current: Iterator[Wait] | None = None  # the job-level step under way
         self.waiting: Wait | None = None
         self.lines_executed = 0
         self.jobs_completed = 0
 
-    # ------------------------------------------------------- host side
+    # ------------------------------------------------------------ queries
+    def aborting(self) -> bool:
+        return self.abort_flag
+
+    def paused(self) -> bool:
+        return self.pause > 0
+
+    def non_selfie_paused(self) -> bool:
+        return self.pause == 1
+
+    @property
+    def job_id(self) -> bytes | None:
+        return self.fw.file_system.reading
+
     def activity(self) -> None:
-        self.last_activity = self.fw.clock.now
+        """Kept for callers that note host activity; the firmware's idle timer only
+        restarts on lines, runs and pause/resume."""
 
-    def _reporting(self, line: bytes) -> int | None:
-        words = parse_words(strip_comment(line))
-        if words and words[0][0] == "M" and int(words[0][1]) in REPORTING:
-            return int(words[0][1])
-        return None
+    # ------------------------------------------------------- host side
+    def execute_gcode(self, data: bytes) -> None:
+        """Queue G-code text; dropped whole (GCODE_BUFFER_OVERRUN) if it would not fit."""
+        if len(self.execute_buffer) + len(data) >= BUFFER_SIZE:
+            self.fw.errors.set(ErrorBit.GCODE_BUFFER_OVERRUN)
+            return
+        self.execute_buffer += data
 
-    def execute_now(self, line: bytes) -> bytes | None:
-        """A Pronterface line: a reporting code runs at once (its response and ok are
-        returned); another is queued and owed an ok once it has run (b""). None when
-        the execute buffer has no room yet."""
-        if self._reporting(line) is not None:
-            return self.report(line)
-        if len(self.execute_buffer) + len(line) + 1 > BUFFER_SIZE:
-            return None
-        self.execute_buffer += line + b"\r"
-        self.oks_owed += 1
-        return b""
-
-    def report(self, line: bytes) -> bytes:
-        """Run a reporting code now: its response text, ended by ok."""
-        gen = self.execute(line)
-        for _ in gen:  # reporting codes never wait
-            pass
-        return self.last_response + b"ok\r\n"
-
-    def execute_from_host(self, text: bytes) -> bytes:
-        """Command 0x95: reporting lines run now, the rest is queued (or dropped if full)."""
-        queued = bytearray()
-        response = bytearray()
-        rest = bytes(text)
-        while rest:
-            end = first_line(bytearray(rest))
-            if end is None:
-                queued += rest  # no terminator: queued as is, no response
-                break
-            line, rest = rest[:end], rest[end + 1 :]
-            if self._reporting(line) is not None:
-                response += self.report(line)
-            else:
-                queued += line + b"\r"
-        if queued:
-            if len(self.execute_buffer) + len(queued) > BUFFER_SIZE:
-                self.fw.errors.set(ErrorBit.GCODE_BUFFER_OVERRUN)
-            else:
-                self.execute_buffer += queued
-        return bytes(response)
+    def run_now(self, text: bytes) -> Iterator[Wait]:
+        """The firmware's gcode_handler on `text`: the first complete line runs at once and
+        its response (ending in ok) is the generator's return value; b"" if `text` holds
+        no complete line."""
+        if line_length(text) == 0:
+            return b""
+        return (yield from self.process_line(text))
 
     # ------------------------------------------------------ job control
-    def run_job(self, file_id: bytes) -> bool:
-        if self.running:
-            return False
-        if not self.fw.file_system.start_read_file(file_id):
-            return False
-        self.running = True
-        self.job_id = self.fw.file_system.reading
-        self.job_buffer.clear()
+    def run_job(self, file_id: bytes) -> None:
+        """0x94: restart, whatever is running; the file is looked up afresh."""
         self.line_number = 0
-        self.pause_state = PauseState.RUNNING
-        self.waiting_for_data = False
-        self.activity()
+        self.pause = 0
+        self.parked = False
+        self.running = True
+        self.job_buffer.clear()
+        self.idle_since = self.fw.clock.now
+        self.fw.file_system.start_read_file(file_id)
         self.fw.events.append(("job started", self.job_id))
-        return True
 
-    def upload_started(self) -> None:
-        pass
+    def pause_resume(self, flag: bytes) -> None:
+        """0x98: '1' pauses a running job; anything else resumes."""
+        self.pause = 1 if flag[:1] == b"1" and self.running else 0
+        self.idle_since = self.fw.clock.now
 
-    def data_arrived(self) -> None:
-        if self.waiting_for_data:
-            self.waiting_for_data = False
-
-    def pause(self, selfie: bool = False) -> None:
-        """Pausing: the line under way ends, then the head parks (see maintain_job)."""
-        if not self.running or self.pause_state != PauseState.RUNNING:
-            return
-        self.pause_state = PauseState.PAUSING
-        self.selfie = selfie
-
-    def _park(self) -> Iterator[Wait]:
-        position = self.fw.position
-        yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-        self.parked = position.save_state()
-        yield from position.park(PARK, PARK_LIFT)
-        self.pause_state = PauseState.SELFIE if self.selfie else PauseState.PAUSED
-
-    def _unpark(self) -> Iterator[Wait]:
-        if self.parked is not None:
-            yield from self.fw.position.restore_state(self.parked)
-        self.parked = None
-        self.pause_state = PauseState.RUNNING
-
-    def error_pause(self) -> None:
-        if self.running:
-            self.pause()
-
-    def resume(self) -> None:
-        """Resuming: the head goes back (see maintain_job), then the job continues."""
-        if not self.running or self.pause_state not in (PauseState.PAUSED, PauseState.SELFIE):
-            return
-        self.pause_state = PauseState.RESUMING
-        self.activity()
+    def invert_pause(self) -> None:
+        self.pause = 0 if self.pause else (1 if self.running else 0)
+        self.idle_since = self.fw.clock.now
 
     def abort(self) -> None:
-        """Stop reading, empty both buffers, wait for motion, heaters off, reload reels."""
-        was = self.running
-        self.fw.file_system.close()
-        self.running = False
-        self.job_id = None
-        self.execute_buffer.clear()
+        """Stop reading and empty both buffers; the rest happens once motion has stopped."""
+        self.abort_flag = True
         self.job_buffer.clear()
-        self.pause_state = PauseState.RUNNING
-        self.parked = None
-        self.waiting_for_data = False
-        self.current = None
-        self.waiting = None
-        self.oks_owed = 0
-        self.current_owes_ok = False
-        self.fw.motion.stop()
-        self.fw.heaters.all_off()
-        self.fw.position.reload_reels()
-        if was:
-            self.fw.events.append(("job aborted", None))
-
-    def abort_if_reading(self) -> None:
-        if self.running:
-            self.abort()
-
-    def _finish(self) -> None:
+        self.execute_buffer.clear()
         self.fw.file_system.close()
-        self.running = False
-        self.fw.heaters.all_off()
-        self.jobs_completed += 1
-        self.fw.events.append(("job finished", self.job_id))
-        self.job_id = None
 
     # ------------------------------------------------------------ status
-    def pause_state_char(self) -> bytes:
-        return str(int(self.pause_state)).encode()
-
-    def busy_char(self) -> bytes:
-        busy = bool(self.execute_buffer) or self.current is not None or \
-            not self.fw.motion.idle() or (self.running and self.pause_state == PauseState.RUNNING)
-        return b"1" if busy else b"0"
+    def state_text(self) -> bytes:
+        """Status bytes 17..26: line number, pause state, busy."""
+        if self.pause == 0:
+            state = b"3" if self.parked else b"0"
+        elif self.pause == 1:
+            state = b"2" if self.parked else b"1"
+        else:
+            state = b"4" if self.parked else b"1"
+        idle = not self.execute_buffer and self.fw.motion.idle() and \
+            (self.pause or not self.running)
+        return b"%08x" % (self.line_number & 0xFFFFFFFF) + state + (b"0" if idle else b"1")
 
     def runnable(self) -> bool:
-        """True when the next pass has a line to start (so the clock must not jump)."""
+        """True when the next pass has something to do at once (the clock must not jump)."""
         if self.current is not None:
             return self.waiting is None or self.waiting == NEXT_PASS
-        if first_line(self.execute_buffer) is not None:
+        if self.abort_flag or line_length(self.execute_buffer):
             return True
-        if self.pause_state in (PauseState.PAUSING, PauseState.RESUMING):
-            return True
-        return self.running and self.pause_state == PauseState.RUNNING and \
-            not self.waiting_for_data
+        if not self.running:
+            return False
+        if self.pause:
+            return not self.parked
+        return True if self.parked else not self._caught_up()
+
+    def _caught_up(self) -> bool:
+        return False
 
     # ------------------------------------------------------------- loop
     def maintain_job(self) -> None:
         if self.current is not None:
             self._drive()
             return
-        if self.pause_state == PauseState.PAUSING:
-            self._start(self._park())
+        self._the_boss()
+        fw = self.fw
+        if self.abort_flag:
+            if fw.motion.idle():
+                fw.heaters.turn_off()
+                was = self.running
+                self.abort_flag = False
+                self.pause = 0
+                self.parked = False
+                self.running = False
+                self.line_number = 0
+                fw.heaters.targets_from_reel()
+                fw.position.filament_info_from_reel()
+                if was:
+                    fw.events.append(("job aborted", None))
             return
-        if self.pause_state == PauseState.RESUMING:
+        n = line_length(self.execute_buffer)
+        if n:
+            self._start(self._buffer_line(self.execute_buffer, n))
+        elif not self.running:
+            return
+        elif self.pause:
+            if not self.parked:
+                self._start(self._park())
+        elif self.parked:
             self._start(self._unpark())
-            return
-        now = self.fw.clock.now
-        if now - self.last_activity >= IDLE_ABORT_S and (self.running or
-                                                        self.fw.heaters.any_on()):
+        elif (n := line_length(self.job_buffer)) > 0:
+            self.line_number += 1
+            self._start(self._buffer_line(self.job_buffer, n))
+        elif len(self.job_buffer) >= LINE_LIMIT:
+            fw.errors.set(ErrorBit.GCODE_LINE_TOO_LONG)
             self.abort()
-            self.fw.heaters.all_off()
-            self.activity()
-            return
-        if self.running and self.pause_state == PauseState.RUNNING and \
-                now - self.last_activity >= IDLE_PAUSE_S:
-            self.pause()
-            return
-        owed = self.oks_owed > 0 and first_line(self.execute_buffer) is not None
-        line = self._next_line()
-        if line is not None:
-            self.activity()
-            if owed:
-                self.oks_owed -= 1
-            self.current_owes_ok = owed
-            self._start(self.execute(line))
+        elif fw.file_system.eof():
+            if fw.motion.idle():
+                self._finish()
+        else:
+            data = fw.file_system.read()
+            if not data:
+                self.pause = 1  # caught up with the upload: stays paused until resumed
+            else:
+                self.job_buffer += data
 
-    def _start(self, line: Iterator[Wait]) -> None:
-        self.current = line
+    def _the_boss(self) -> None:
+        now = self.fw.clock.now
+        if self.running and self.fw.command.is_error():
+            self.pause = 1
+        if self.running and now - self.idle_since >= IDLE_PAUSE_S:
+            self.pause = 1
+        elif now - self.idle_since >= IDLE_ABORT_S:
+            self.abort()  # even with no job: it turns the heaters off
+            self.idle_since = now
+
+    def _finish(self) -> None:
+        fw = self.fw
+        job_id = self.job_id
+        fw.file_system.close()
+        fw.heaters.turn_off()
+        self.pause = 0
+        self.running = False
+        self.job_buffer.clear()
+        self.line_number = 0
+        fw.heaters.targets_from_reel()
+        fw.position.filament_info_from_reel()
+        self.jobs_completed += 1
+        fw.events.append(("job finished", job_id))
+
+    def _start(self, step: Iterator[Wait]) -> None:
+        self.current = step
         self._drive()
 
     def _drive(self) -> None:
@@ -311,138 +268,140 @@ class Job:
         except StopIteration:
             self.current = None
             self.waiting = None
-            if self.current_owes_ok:
-                self.current_owes_ok = False
-                self.fw.command.send(b"ok\r\n")
 
-    def _take_line(self, buffer: bytearray) -> bytes | None:
-        end = first_line(buffer)
-        if end is None:
-            return None
-        line = bytes(buffer[:end])
-        del buffer[: end + 1]
-        return line
+    def _buffer_line(self, buffer: bytearray, n: int) -> Iterator[Wait]:
+        yield from self.process_line(bytes(buffer[:n]))
+        if len(buffer) >= n:  # an abort may have emptied it meanwhile
+            del buffer[:n]
+        self.idle_since = self.fw.clock.now
 
-    def _next_line(self) -> bytes | None:
-        line = self._take_line(self.execute_buffer)
-        if line is not None:
-            return line
-        if not self.running or self.pause_state != PauseState.RUNNING:
-            return None
-        line = self._take_line(self.job_buffer)
-        if line is not None and len(line) > LINE_LIMIT:
-            self.fw.errors.set(ErrorBit.GCODE_LINE_TOO_LONG)
-            self.abort()
-            return None
-        if line is not None:
-            self.line_number += 1
-            return line
-        fs = self.fw.file_system
-        if len(self.job_buffer) >= LINE_LIMIT:  # half full, no line end: too long
-            self.fw.errors.set(ErrorBit.GCODE_LINE_TOO_LONG)
-            self.abort()
-            return None
-        data = fs.read()
-        if data:
-            self.waiting_for_data = False
-            self.job_buffer += data
-            return None
-        if fs.reading is None and not fs.eof():
-            self.abort()  # the file went away (card removed, clobbered)
-            return None
-        if not fs.eof():
-            self.waiting_for_data = True  # caught up with the upload: wait for chunks
-            return None
-        if self.job_buffer:
-            line = bytes(self.job_buffer)
-            self.job_buffer.clear()
-            self.line_number += 1
-            return line
-        if self.fw.motion.idle():
-            self._finish()
-        else:
-            self.waiting_for_data = False
-        return None
+    def _park(self) -> Iterator[Wait]:
+        yield from self.fw.position.park()
+        self.fw.heaters.pause()
+        self.parked = True
+
+    def _unpark(self) -> Iterator[Wait]:
+        yield from self.fw.heaters.resume()
+        if not self.abort_flag:
+            yield from self.fw.position.unpark()
+        self.parked = False
 
     # -------------------------------------------------------- execution
-    def execute(self, raw: bytes) -> Iterator[Wait]:
-        """Run one line (a generator: it yields while it waits). A reporting code leaves
-        its response text in `last_response`."""
-        self.last_response = b""
-        line = strip_comment(raw)
-        words = parse_words(line)
-        if not words:
-            return
+    def process_line(self, raw: bytes) -> Iterator[Wait]:
+        """Run one line (a generator: it yields while it waits); returns its response
+        text, which always ends in ok."""
+        line = Line(raw)
         self.lines_executed += 1
-        letter, number = words[0]
-        params = {}
-        for key, value in words[1:]:
-            params.setdefault(key, value)
-        code = int(number)
-        try:
-            if letter == "G":
-                yield from self._g(code, params)
-            elif letter == "M":
-                yield from self._m(code, params)
-            elif letter == "T":
-                yield from self.fw.position.select_tool(code)
-        except Exception as exc:  # pragma: no cover - a model bug must not stop the loop
-            self.fw.note_fault(exc)
+        response = b""
+        if line.has("G"):
+            yield from self._g(line.int("G"), line)
+        elif line.has("M"):
+            response = yield from self._m(line.int("M"), line)
+        elif line.has("T"):
+            yield from self.fw.position.select_tool(line.int("T"), line)
+        return (response or b"") + b"ok\r\n"
 
-    def _g(self, code: int, p: dict) -> Iterator[Wait]:
+    def _g(self, code: int, line: Line) -> Iterator[Wait]:
         pos = self.fw.position
+        motion = self.fw.motion
         if code in (0, 1):
-            yield from pos.move(p)
+            yield from pos.move(line, rapid=code == 0)
         elif code == 4:
-            seconds = p.get("S", 0.0) + p.get("P", 0.0) / 1000.0
-            yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-            end = self.fw.clock.now + max(0.0, seconds)
-            yield from wait_for(lambda: self.fw.clock.now >= end, Wait(until=end))
+            yield from wait_for(motion.idle, Wait(motion=True))
+            if line.has("S"):
+                seconds = line.float("S")
+            elif line.has("P"):
+                seconds = line.float("P") / 1000.0
+            else:
+                seconds = 0.0
+            end = self.fw.clock.now + int(seconds * 1000) / 1000.0 if seconds > 0 else None
+            if end is not None:
+                yield from wait_for(lambda: self.abort_flag or self.fw.clock.now >= end,
+                                    Wait(until=end))
         elif code == 28:
-            axes = [a for a in "XYZB" if a in p] or ["X", "Y", "Z"]
-            yield from pos.home(axes)
+            yield from pos.home(line)
+        elif code == 36:
+            yield from pos.move_filament_until_slip(line)
+        elif code == 37:
+            yield from pos.unlock_cover(line)
+        elif code == 38:
+            yield from pos.level_gantry()
+        elif code == 39:
+            pos.level_bed(line)
         elif code == 90:
             pos.relative = False
         elif code == 91:
             pos.relative = True
         elif code == 92:
-            pos.set_position(p)
+            yield from pos.set_position(line)
 
-    def _m(self, code: int, p: dict) -> Iterator[Wait]:
+    def _m(self, code: int, line: Line) -> Iterator[Wait]:
         fw = self.fw
         heaters = fw.heaters
+        pos = fw.position
         if code == 1:
-            self.pause(selfie="C" in p)
-        elif code in (104, 109):
-            yield from heaters.set_nozzle(p, wait=code == 109)
+            if self.running:
+                self.pause = 2 if line.has("C") else 1
+        elif code == 84:
+            yield from wait_for(fw.motion.idle, Wait(motion=True))
+            fw.motion.motors_off()
         elif code == 103:
-            heaters.set_first_layer_nozzle(p)
-        elif code in (140, 190):
-            yield from heaters.set_bed(p, wait=code == 190)
-        elif code == 139:
-            heaters.set_first_layer_bed(p)
-        elif code == 170:
-            heaters.set_ambient(p)
+            heaters.set_nozzle_temperature(line, 1)
+        elif code == 104:
+            heaters.set_nozzle_temperature(line, 0)
         elif code == 105:
-            self.last_response = heaters.m105_text()
+            return heaters.m105_text()
         elif code == 106:
-            fw.hw.machine.head_fan = min(255.0, max(0.0, p.get("S", 255.0))) / 255.0
+            heaters.set_head_fan(min(255, line.uint("S")) if line.has("S") else 255)
         elif code == 107:
-            fw.hw.machine.head_fan = 0.0
+            heaters.set_head_fan(0)
+        elif code == 109:
+            yield from heaters.wait_for_nozzle()
+        elif code in (111, 112, 113, 999):
+            return pos.delta_text({111: "X", 112: "Y", 113: "Z", 999: "B"}[code])
         elif code == 114:
-            self.last_response = fw.position.m114_text()
+            return pos.m114_text()
         elif code == 115:
-            self.last_response = f"FIRMWARE_NAME: robox {fw.revision}\r\n".encode()
+            return f"FIRMWARE_NAME: robox {fw.revision}\r\n".encode()
         elif code == 119:
-            self.last_response = fw.position.m119_text()
+            return pos.m119_text()
+        elif code in (120, 121, 122):
+            yield from pos.filament_load_unload(code, line)
+        elif code in (126, 127):
+            heaters.set_head_power(code == 127)
+        elif code == 128:
+            fw.hw.machine.head_lights = False
+        elif code == 129:
+            heaters.set_head_power(True)
+            fw.hw.machine.head_lights = True
+        elif code == 139:
+            heaters.set_bed_temperature(line, 1)
+        elif code == 140:
+            heaters.set_bed_temperature(line, 0)
+        elif code == 150:
+            heaters.nozzle_targets_from_reel(line)
+        elif code == 154:
+            heaters.bed_targets_from_reel()
+        elif code == 157:
+            heaters.ambient_target_from_reel()
+        elif code == 170:
+            heaters.set_ambient_temperature(line)
+        elif code == 190:
+            yield from heaters.wait_for_bed(line)
         elif code == 400:
             yield from wait_for(fw.motion.idle, Wait(motion=True))
         elif code == 503:
-            self.last_response = fw.parameters.m503_text()
+            return fw.parameters.m503_text()
         elif code in (500, 501, 502):
             {500: fw.parameters.save, 501: fw.parameters.load,
              502: fw.parameters.defaults}[code]()
-        elif code in fw.parameters.CODES:
-            fw.parameters.set_from_gcode(code, p)
-        elif code == 84:
-            pass  # motors off: the model keeps positions
+        elif code == 997:
+            return b""
+        elif code == 998:
+            if line.has("S"):
+                bit = line.int("S")
+                if 0 <= bit < 64:
+                    fw.errors.bits |= 1 << bit
+        else:
+            fw.parameters.set_from_line(code, line)
+        return b""

@@ -1,39 +1,91 @@
-"""Heaters: nozzle 0, nozzle 1, bed and ambient, PID-driven duty on first-order plants."""
+"""Heaters: nozzle 0, nozzle 1, bed and ambient, as the firmware's temperature controllers.
+
+Each controller has a mode (0 off, 1 normal target, 2 first-layer target, 3 the
+unload temperature), two targets and a PID controller sampled once a second.
+What a host can see follows the firmware: targets only change through the
+G-codes, 0xc3 and the reels, M104 S0 turns a nozzle off but keeps its target,
+bed targets clamp to 160 and the ambient target to 60, nozzle targets clamp to
+the head type's maximum at the next sample, and with a single-material head
+nozzle 1 reads 0 degrees. The measured temperatures come from the simulated
+thermal plants (a deliberate difference: the physics is the model's own).
+"""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from robox.firmware.gcode import Wait, wait_for
+from robox.firmware.cline import Line, float32, strtof
+from robox.firmware.gcode import Wait
 from robox.formats.eeprom import EepromIndex
-from robox.formats.float8 import encode as float8
 from robox.formats.protocol import ErrorBit
 
-CHANNELS = ("nozzle0", "nozzle1", "bed", "ambient")
-THERMISTOR_ERROR = {"nozzle0": ErrorBit.NOZZLE0_THERMISTOR,
-                    "nozzle1": ErrorBit.NOZZLE1_THERMISTOR, "bed": ErrorBit.BED_THERMISTOR}
-GAINS = {"nozzle0": (0.08, 0.004, 0.3), "nozzle1": (0.08, 0.004, 0.3),
-         "bed": (0.2, 0.002, 1.0), "ambient": (0.1, 0.001, 0.0)}
-REACHED = 2.0  # degrees: a wait is over within this of the target
-HOT = 60.0  # a nozzle above this is "hot" (head hours, powered off whilst hot)
-OFF, NORMAL, FIRST_LAYER = 0, 1, 2
+HEAD, REEL0, REEL1 = EepromIndex.HEAD, EepromIndex.REEL0, EepromIndex.REEL1
+SAMPLE_S = 1.0
+NOZZLE_TEMP_MARGIN = 0.017
+BED_TEMP_MARGIN = 0.03
+NOZZLE_FLUSH_MARGIN_C = 15.0
+UNLOAD_NOZZLE_TEMPERATURE = 140.0
+UNLOAD_NOZZLE_DWELL_S = 5.0
+NOZZLE_PAUSE_AUTO_OFF_S = 300.0
+HEAD_FAN_OVERRIDE_TEMPERATURE = 60.0
+HEAD_FAN_OVERRIDE_DUTY = int(255 * 0.6)
+HEAD_HOT_TEMPERATURE = 60.0
+HEAD_DEFAULT_LIMIT = 300.0
+HEAD_SHUTDOWN_THRESHOLD = 5.0
+BED_HOT_TEMPERATURE = 60.0
+BED_DROOP_THRESHOLD = 5.0
+MAX_BED_TARGET = 160.0
+MAX_AMBIENT_TARGET = 60.0
+# time-to-target estimates (final delta above ambient, time constant)
+BED_APPROACH = (150.0, 280.0)
+SINGLE_NOZZLE_APPROACH = (253.0, 71.0)
+DUAL_NOZZLE_APPROACH = (276.0, 55.0)
+HIGH_TEMP_NOZZLE_APPROACH = (434.0, 84.0)
+# the firmware's default controller gains (kp, ki, kd)
+GAINS = {"nozzle": (0.08, 0.012, 0.55), "bed": (0.05, 0.006, 1.4), "ambient": (0.1, 0.0, 0.0)}
+NOT_WAITING, BED_COOLING, BED_AT_TEMPERATURE, NOZZLE_AT_TEMPERATURE = 0, 1, 2, 3
+FLT_MAX = 3.4028234663852886e38
+OPEN_THERMISTOR = -40.0
+HOT_FLAG_BYTE = 0  # nonvolatile byte of the card directory: "head was hot"
 
 
 @dataclass
-class Channel:
-    name: str
-    mode: int = OFF
-    target: float = 0.0
-    first_layer_target: float = 0.0
-    integral: float = 0.0
-    previous_error: float = 0.0
+class Controller:
+    """One temperature controller's state."""
 
-    @property
+    plant: str
+    mode: int = 0
+    target: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    measured: float = 0.0
+    last_measured: float = 0.0
+    integrator: float = 0.0
+    pwm_duty: int = 0
+    fault_since: float = 0.0
+    unload_since: float = 0.0
+
     def setpoint(self) -> float:
-        if self.mode == OFF:
-            return 0.0
-        return self.first_layer_target if self.mode == FIRST_LAYER else self.target
+        if self.mode == 1:
+            return self.target[0]
+        if self.mode == 2:
+            return self.target[1]
+        return UNLOAD_NOZZLE_TEMPERATURE
+
+
+def time_to_target(target: float, now: float, ambient: float, approach) -> float:
+    """Seconds to heat from `now` to `target`, on an exponential approach."""
+    final_delta, tconst = approach
+    v = final_delta + ambient - now
+    if v <= 0.0:
+        return FLT_MAX
+    v = (target - now) / v
+    if v <= 0.0:
+        return 0.0
+    v = 1.0 - v
+    if v <= 0.0:
+        return FLT_MAX
+    return tconst * -math.log(v)
 
 
 class Heaters:
@@ -41,146 +93,389 @@ class Heaters:
         self.fw = firmware
 
     def initialise(self) -> None:
-        self.channels = {name: Channel(name) for name in CHANNELS}
-        self.waiting_for = "0"
-        self.last_time = self.fw.clock.now
-        self.fw.eeproms.on_valid.append(self._eeprom_valid)
-        self.fw.eeproms.on_lost.append(self._eeprom_lost)
+        now = self.fw.clock.now
+        self.nozzle = [Controller("nozzle0", target=[180.0, 180.0]),
+                       Controller("nozzle1", target=[180.0, 180.0])]
+        self.bed = Controller("bed")
+        self.ambient = Controller("ambient")
+        for c in self.controllers():
+            c.fault_since = c.unload_since = now
+        self.sample_due = now + SAMPLE_S
+        self.nozzle_mode_at_pause = [0, 0]
+        self.force_ambient_fan = False
+        self.why_are_we_waiting = NOT_WAITING
+        self.timing_pause = False
+        self.pause_since = now
+        self.head_fan_requested = 0
+        self.head_fan_duty = 0
+        self.bed_got_to = -FLT_MAX
+        self.set_head_power(True)
 
-    def _eeprom_valid(self, index) -> None:
-        if index == EepromIndex.REEL0:
-            self.load_reel_targets()
+    def controllers(self) -> tuple[Controller, ...]:
+        return (self.nozzle[0], self.nozzle[1], self.bed, self.ambient)
 
-    def _eeprom_lost(self, index) -> None:
-        if index == EepromIndex.HEAD:
-            self.all_off()
+    # ---------------------------------------------------------- helpers
+    @property
+    def _eeproms(self):
+        return self.fw.eeproms
 
-    def load_reel_targets(self) -> None:
-        eeproms = self.fw.eeproms
-        if eeproms.status(EepromIndex.REEL0) != 2:
-            return
-        get = lambda name: eeproms.get_float(EepromIndex.REEL0, name)  # noqa: E731
-        nozzle, bed = self.channels["nozzle0"], self.channels["bed"]
-        nozzle.target, nozzle.first_layer_target = get("nozzle_temperature"), \
-            get("first_layer_nozzle_temperature")
-        bed.target, bed.first_layer_target = get("bed_temperature"), \
-            get("first_layer_bed_temperature")
-        self.channels["ambient"].target = get("ambient_temperature")
+    def _reel_float(self, index: EepromIndex, address: int, default: float) -> float:
+        return self._eeproms.float_at(index, address, default)
+
+    def head_max_temperature(self) -> float:
+        return self._eeproms.head_max_temperature()
 
     # ------------------------------------------------------------ control
     def maintain(self) -> None:
         now = self.fw.clock.now
-        dt = now - self.last_time
-        self.last_time = now
-        machine = self.fw.hw.machine
-        for name, channel in self.channels.items():
-            plant = machine.heaters[name]
-            if not plant.thermistor_ok and name in THERMISTOR_ERROR:
-                self.fw.errors.set(THERMISTOR_ERROR[name])
-                channel.mode = OFF
-            setpoint = channel.setpoint
-            if channel.mode == OFF or setpoint <= 0:
-                plant.duty = 0.0
-                channel.integral = 0.0
-                continue
-            kp, ki, kd = GAINS[name]
-            error = setpoint - plant.temperature
-            if dt > 0:
-                channel.integral = max(-50.0, min(50.0, channel.integral + error * dt))
-                derivative = (error - channel.previous_error) / dt
-            else:
-                derivative = 0.0
-            channel.previous_error = error
-            plant.duty = max(0.0, min(1.0, kp * error + ki * channel.integral * 10
-                                      + kd * derivative * 0.01))
+        if now < self.sample_due:
+            return
+        self.sample_due = now + SAMPLE_S
+        self._sample(now)
+
+    def _sample(self, now: float) -> None:
+        eeproms = self._eeproms
+        plants = self.fw.hw.machine.heaters
+        limit = self.head_max_temperature()
+        for nozzle in self.nozzle:
+            nozzle.target = [min(t, limit) for t in nozzle.target]
+        self.ambient.measured = _read(plants["ambient"])
+        self._control(self.ambient, GAINS["ambient"], invert=True)
+        self.nozzle[0].measured = _read(plants["nozzle0"])
+        self.nozzle[1].measured = _read(plants["nozzle1"]) \
+            if eeproms.head_dual_material() else 0.0
+        self._control(self.nozzle[0], GAINS["nozzle"])
+        if eeproms.head_has_two_fans():
+            self.nozzle[1].pwm_duty = self.head_fan_requested
+        else:
+            self._control(self.nozzle[1], GAINS["nozzle"])
+        self.bed.measured = _read(plants["bed"])
+        self._control(self.bed, GAINS["bed"])
+        if max(self.nozzle[0].measured, self.nozzle[1].measured) >= \
+                HEAD_FAN_OVERRIDE_TEMPERATURE:
+            self.head_fan_duty = max(self.head_fan_requested, HEAD_FAN_OVERRIDE_DUTY)
+        else:
+            self.head_fan_duty = self.head_fan_requested
+        limit = eeproms.float_at(HEAD, 0x28, HEAD_DEFAULT_LIMIT)
+        if any(n.measured - limit >= HEAD_SHUTDOWN_THRESHOLD for n in self.nozzle):
+            if self.head_power_on():
+                self.fw.errors.set(ErrorBit.HEAD_POWER_OVERTEMP)
+            self.set_head_power(False)
+        for nozzle in self.nozzle:
+            if nozzle.measured < UNLOAD_NOZZLE_TEMPERATURE * (1.0 - NOZZLE_TEMP_MARGIN):
+                nozzle.unload_since = now
+        if self.timing_pause and now - self.pause_since >= NOZZLE_PAUSE_AUTO_OFF_S:
+            self.nozzle[0].mode = self.nozzle[1].mode = 0
+            self.timing_pause = False
+        self._check_bed_droop()
+        self._check_thermistors(now)
+        self.fw.file_system.set_nonvolatile(HOT_FLAG_BYTE, int(self.head_hot_now()))
+        self._drive_plants()
+
+    def _control(self, c: Controller, gains, invert: bool = False) -> None:
+        kp, ki, kd = gains
+        if c.mode:
+            target = c.setpoint()
+            error = (c.measured - target) if invert else (target - c.measured)
+            total = kp * error + c.integrator + kd * (c.last_measured - c.measured)
+            total = max(0.0, min(1.0, total))
+            error = (total - c.integrator) / kp
+            c.integrator += ki * error
+            c.pwm_duty = int(255.0 * total)
+        else:
+            c.pwm_duty = 0
+            c.integrator = 0.0
+        c.last_measured = c.measured
+
+    def _check_bed_droop(self) -> None:
+        bed = self.bed
+        if bed.mode > 0:
+            self.bed_got_to = min(bed.target[bed.mode - 1], max(self.bed_got_to, bed.measured))
+            if self.bed_got_to - bed.measured > BED_DROOP_THRESHOLD:
+                self.fw.errors.set(ErrorBit.BED_TEMPERATURE_DROOP)
+                self.bed_got_to = -FLT_MAX
+        else:
+            self.bed_got_to = -FLT_MAX
+
+    def _check_thermistors(self, now: float) -> None:
+        checks = ((self.bed, 60.0, ErrorBit.BED_THERMISTOR, False),
+                  (self.nozzle[0], 20.0, ErrorBit.NOZZLE0_THERMISTOR, False),
+                  (self.nozzle[1], 20.0, ErrorBit.NOZZLE1_THERMISTOR,
+                   self._eeproms.head_has_two_fans()))
+        for c, after, bit, exempt in checks:
+            if c.pwm_duty != 255 or exempt:
+                c.fault_since = now
+            elif now - c.fault_since >= after and c.measured < 20.0:
+                self.fw.errors.set(bit)
+                c.mode = 0
+
+    def _drive_plants(self) -> None:
+        """The PWM outputs reach the plants; the head's only while it has power."""
+        plants = self.fw.hw.machine.heaters
+        powered = self.head_power_on()
+        for c in self.controllers():
+            on_head = c.plant.startswith("nozzle")
+            duty = c.pwm_duty / 255.0
+            if c is self.ambient or (on_head and not powered):
+                duty = 0.0
+            if c is self.nozzle[1] and self._eeproms.head_has_two_fans():
+                duty = 0.0
+            plants[c.plant].duty = duty
+        self.fw.hw.machine.head_fan = self.head_fan_duty / 255.0
 
     def any_on(self) -> bool:
-        return any(c.mode != OFF for c in self.channels.values())
+        return any(c.mode for c in self.controllers())
 
-    def all_off(self) -> None:
-        for channel in self.channels.values():
-            channel.mode = OFF
-        for plant in self.fw.hw.machine.heaters.values():
-            plant.duty = 0.0
+    def turn_off(self) -> None:
+        self.timing_pause = False
+        for c in self.controllers():
+            c.mode = 0
+        self.head_fan_requested = 0
+
+    all_off = turn_off
+
+    def head_hot_now(self) -> bool:
+        return max(self.nozzle[0].measured, self.nozzle[1].measured) > HEAD_HOT_TEMPERATURE
 
     def head_hot(self) -> bool:
-        heaters = self.fw.hw.machine.heaters
-        return max(heaters["nozzle0"].temperature, heaters["nozzle1"].temperature) > HOT
+        """For head hours: a nozzle at or above 60 C at the last sample."""
+        return max(self.nozzle[0].measured, self.nozzle[1].measured) >= HEAD_HOT_TEMPERATURE
 
-    def reached(self, name: str) -> bool:
-        channel = self.channels[name]
-        return channel.mode == OFF or \
-            abs(self.fw.hw.machine.heaters[name].temperature - channel.setpoint) <= REACHED
+    # ---------------------------------------------------------- head power
+    def head_power_on(self) -> bool:
+        return self.fw.hw.machine.head_power
 
-    def _wait(self, name: str, why: str) -> Iterator[Wait]:
-        self.waiting_for = why
-        yield from wait_for(lambda: self.reached(name), Wait(heater=name))
-        self.waiting_for = "0"
+    def set_head_power(self, on: bool) -> None:
+        machine = self.fw.hw.machine
+        if on and machine.head_shorted:
+            self.fw.errors.set(ErrorBit.HEAD_SHORTED)
+            on = False
+        machine.head_power = on
 
-    # ---------------------------------------------------------- G-codes
-    def _set(self, name: str, p: dict, first_layer: bool = False) -> None:
-        channel = self.channels[name]
-        if "S" in p:
-            if first_layer:
-                channel.first_layer_target = p["S"]
+    def shut_down_head_due_to_eeprom(self) -> None:
+        if self.head_power_on():
+            self.fw.errors.set(ErrorBit.HEAD_POWER_EEPROM)
+        self.set_head_power(False)
+
+    def check_for_poweroff_whilst_hot(self) -> None:
+        value = self.fw.file_system.nonvolatile(HOT_FLAG_BYTE)
+        if value:
+            self.fw.errors.set(ErrorBit.POWEROFF_WHILST_HOT)
+
+    # ------------------------------------------------------ pause, resume
+    def pause(self) -> None:
+        self.nozzle_mode_at_pause = [self.nozzle[0].mode, self.nozzle[1].mode]
+        self.pause_since = self.fw.clock.now
+        self.timing_pause = True
+
+    def resume(self) -> Iterator[Wait]:
+        self.timing_pause = False
+        self.nozzle[0].mode, self.nozzle[1].mode = self.nozzle_mode_at_pause
+        yield from self.wait_for_nozzle(ignore_pause=True)
+        yield from self.wait_for_bed(Line(b""), ignore_pause=True)
+
+    # ------------------------------------------------------------ G-codes
+    def set_nozzle_temperature(self, line: Line, first_layer: int) -> None:
+        mode = first_layer + 1
+        if not line.has("S") and not line.has("T"):
+            self._nozzle_mode(0, mode)
+            if self._eeproms.head_dual_material():
+                self._nozzle_mode(1, mode)
+        else:
+            for i, letter in enumerate("ST"):
+                if not line.has(letter):
+                    continue
+                if not line.has_float(letter):
+                    self._nozzle_mode(i, mode)
+                elif line.float(letter) > 0.0:
+                    self.nozzle[i].target[first_layer] = line.float(letter)
+                    self._nozzle_mode(i, mode)
+                else:  # zero or less: off, the target kept
+                    self._nozzle_mode(i, 0)
+        if self.nozzle[0].mode or self.nozzle[1].mode:
+            self.set_head_power(True)
+
+    def _nozzle_mode(self, i: int, mode: int) -> None:
+        self.nozzle[i].mode = self.nozzle_mode_at_pause[i] = mode
+
+    def set_bed_temperature(self, line: Line, first_layer: int) -> None:
+        bed = self.bed
+        address = 0x38 if first_layer else 0x40
+        for letter, reel in (("D", REEL1), ("E", REEL0)):
+            if line.has(letter):
+                bed.target[first_layer] = min(
+                    MAX_BED_TARGET, self._reel_float(reel, address, bed.target[first_layer]))
+        if line.has("S"):
+            if line.float("S") > 0.0:
+                bed.target[first_layer] = min(MAX_BED_TARGET, line.float("S"))
+                bed.mode = first_layer + 1
             else:
-                channel.target = p["S"]
-        if not first_layer:
-            channel.mode = NORMAL if channel.target > 0 else OFF
+                bed.mode = 0
+        elif bed.target[first_layer] > 0.0:
+            bed.mode = first_layer + 1
+        else:
+            bed.mode = 0
 
-    def set_nozzle(self, p: dict, wait: bool) -> Iterator[Wait]:
-        name = f"nozzle{int(p.get('T', self.fw.position.tool)) % 2}"
-        self._set(name, p)
-        if wait:
-            yield from self._wait(name, "2" if name == "nozzle0" else "3")
+    def set_ambient_temperature(self, line: Line) -> None:
+        amb = self.ambient
+        for letter, reel in (("D", REEL1), ("E", REEL0)):
+            if line.has(letter):
+                amb.target[0] = min(MAX_AMBIENT_TARGET,
+                                    self._reel_float(reel, 0x48, amb.target[0]))
+        if line.has("S"):
+            if line.float("S") > 0.0:
+                amb.target[0] = min(MAX_AMBIENT_TARGET, line.float("S"))
+                amb.mode = 1
+            else:
+                amb.mode = 0
+        else:
+            amb.mode = 1
 
-    def set_first_layer_nozzle(self, p: dict) -> None:
-        self._set(f"nozzle{int(p.get('T', self.fw.position.tool)) % 2}", p, first_layer=True)
+    def set_head_fan(self, duty: int) -> None:
+        if duty > 0:
+            self.set_head_power(True)
+        self.head_fan_requested = duty
 
-    def set_bed(self, p: dict, wait: bool) -> Iterator[Wait]:
-        self._set("bed", p)
-        if wait:
-            yield from self._wait("bed", "1")
+    def set_targets(self, params: bytes) -> None:
+        """Command 0xc3: seven float8 fields, nozzle 0 first."""
+        v = [strtof(params[i : i + 8]) for i in range(0, 56, 8)]
+        self.nozzle[0].target = [v[0], v[1]]
+        self.nozzle[1].target = [v[2], v[3]]
+        self.bed.target = [min(v[4], MAX_BED_TARGET), min(v[5], MAX_BED_TARGET)]
+        ambient = min(v[6], MAX_AMBIENT_TARGET)
+        self.ambient.target = [ambient, ambient]
 
-    def set_first_layer_bed(self, p: dict) -> None:
-        self._set("bed", p, first_layer=True)
+    # ------------------------------------------------------ reel targets
+    def nozzle_targets_from_reel(self, line: Line) -> None:
+        eeproms = self._eeproms
+        connected = self.fw.command.host_connected()
+        dual = eeproms.head_dual_material()
+        n0, n1 = self.nozzle
+        if line.has("S") or not line.has("T"):
+            reel = REEL1 if dual else REEL0
+            n0.target = [self._reel_float(reel, 0x30, n0.target[0]),
+                         self._reel_float(reel, 0x28, n0.target[1])]
+            if not connected and eeproms.valid(reel):
+                melt = eeproms.float_at(HEAD, 0xB0, n0.target[0])
+                if abs(melt - n0.target[0]) > NOZZLE_FLUSH_MARGIN_C:
+                    self.fw.errors.set(ErrorBit.NOZZLE_FLUSH_NEEDED)
+        if line.has("T") or not line.has("S"):
+            n1.target = [self._reel_float(REEL0, 0x30, n1.target[0]),
+                         self._reel_float(REEL0, 0x28, n1.target[1])]
+            if not connected and eeproms.valid(REEL0) and dual:
+                melt = eeproms.float_at(HEAD, 0xA8, n1.target[0])
+                if abs(melt - n1.target[0]) > NOZZLE_FLUSH_MARGIN_C:
+                    self.fw.errors.set(ErrorBit.NOZZLE_FLUSH_NEEDED)
 
-    def set_ambient(self, p: dict) -> None:
-        self._set("ambient", p)
+    def bed_targets_from_reel(self) -> None:
+        bed = self.bed
+        for i, address in ((0, 0x40), (1, 0x38)):
+            t = self._reel_float(REEL0, address, bed.target[i])
+            t = max(t, self._reel_float(REEL1, address, t))
+            bed.target[i] = min(t, MAX_BED_TARGET)
 
-    def set_targets(self, values: list[float]) -> None:
-        """Command 0xc3: the seven targets, nozzle 0 first."""
-        n0, n0f, n1, n1f, bed, bedf, ambient = values
-        for name, target, first in (("nozzle0", n0, n0f), ("nozzle1", n1, n1f),
-                                    ("bed", bed, bedf), ("ambient", ambient, None)):
-            channel = self.channels[name]
-            channel.target = target
-            if first is not None:
-                channel.first_layer_target = first
+    def ambient_target_from_reel(self) -> None:
+        t = self._reel_float(REEL0, 0x48, self.ambient.target[0])
+        t = max(t, self._reel_float(REEL1, 0x48, t))
+        t = min(t, MAX_AMBIENT_TARGET)
+        self.ambient.target = [t, t]
 
-    # --------------------------------------------------------- reports
+    def targets_from_reel(self) -> None:
+        if not self.fw.job.running:
+            self.bed_targets_from_reel()
+        self.nozzle_targets_from_reel(Line(b"S T"))
+        self.ambient_target_from_reel()
+
+    # -------------------------------------------------------------- waits
+    def wait_for_nozzle(self, ignore_pause: bool = False) -> Iterator[Wait]:
+        """M109: until the selected nozzle (nozzle 0 on a single-material head) is within
+        1.7% of its target; no wait when it is off, the head unpowered, or on abort."""
+        self.why_are_we_waiting = NOZZLE_AT_TEMPERATURE
+        i = self.fw.position.tool if self._eeproms.head_dual_material() else 0
+        job = self.fw.job
+        while True:
+            yield Wait(heater=f"nozzle{min(i, 1)}")
+            c = self.nozzle[min(i, 1)]
+            v = 0.0
+            if (not job.paused() or ignore_pause) and not job.aborting() and \
+                    self.head_power_on() and c.mode != 0:
+                target = c.setpoint()
+                v = abs(target - c.measured) / max(1.0, target)
+            if v <= NOZZLE_TEMP_MARGIN:
+                break
+        self.why_are_we_waiting = NOT_WAITING
+
+    def wait_for_bed(self, line: Line, ignore_pause: bool = False) -> Iterator[Wait]:
+        """M190: until the bed is within 3% of its target, or (S, T) it is time to start
+        heating a nozzle, or (P) the given seconds before the bed would get there."""
+        self.why_are_we_waiting = BED_AT_TEMPERATURE
+        eeproms = self._eeproms
+        job = self.fw.job
+        done = False
+        while not done:
+            yield Wait(heater="bed")
+            bed = self.bed
+            if bed.mode == 0:
+                break
+            target = bed.target[bed.mode - 1]
+            bederr = target - bed.measured
+            if bederr > 0.0:
+                tbed = time_to_target(target, bed.measured, self.ambient.measured, BED_APPROACH)
+                if line.has_float("P"):
+                    tbed -= line.float("P")
+                    done = done or tbed < 0.0
+                for i, letter in enumerate("ST"):
+                    if not line.has(letter):
+                        continue
+                    v = line.float(letter) if line.has_float(letter) else \
+                        self.nozzle[i].target[bed.mode - 1]
+                    approach = DUAL_NOZZLE_APPROACH if eeproms.head_dual_material() else \
+                        HIGH_TEMP_NOZZLE_APPROACH if eeproms.head_has_prtd() else \
+                        SINGLE_NOZZLE_APPROACH
+                    v = time_to_target(v, self.nozzle[i].measured, self.ambient.measured,
+                                       approach)
+                    done = done or v >= tbed
+            done = done or target <= 0.0
+            done = done or abs(bederr / max(1.0, target)) <= BED_TEMP_MARGIN
+            done = done or (job.paused() and not ignore_pause)
+            done = done or job.aborting()
+        self.why_are_we_waiting = NOT_WAITING
+
+    def wait_for_bed_cool(self) -> Iterator[Wait]:
+        self.why_are_we_waiting = BED_COOLING
+        while not self.fw.job.aborting() and self.bed.measured >= BED_HOT_TEMPERATURE:
+            yield Wait(heater="bed")
+        self.why_are_we_waiting = NOT_WAITING
+
+    # ------------------------------------------------------------ reports
     def report_block(self) -> bytes:
         """Bytes 40..133 of the status report."""
-        machine = self.fw.hw.machine
         out = bytearray()
-        for name in ("nozzle0", "nozzle1", "bed"):
-            channel = self.channels[name]
-            out += str(channel.mode).encode()
-            out += float8(machine.heaters[name].temperature, b"\0")
-            out += float8(channel.target, b"\0") + float8(channel.first_layer_target, b"\0")
-        ambient = self.channels["ambient"]
-        out += str(ambient.mode).encode()
-        out += float8(machine.heaters["ambient"].temperature, b"\0")
-        out += float8(ambient.target, b"\0")
-        out += b"1" if machine.head_fan > 0 else b"0"
-        out += self.waiting_for.encode()
+        for c in (self.nozzle[0], self.nozzle[1], self.bed):
+            out += b"%d" % c.mode
+            out += _f8(c.measured) + _f8(c.target[0]) + _f8(c.target[1])
+        out += b"%d" % self.ambient.mode
+        out += _f8(self.ambient.measured) + _f8(self.ambient.target[0])
+        out += b"1" if self.head_fan_requested > 0 else b"0"
+        out += b"%d" % self.why_are_we_waiting
         return bytes(out)
 
     def m105_text(self) -> bytes:
-        h = self.fw.hw.machine.heaters
-        duty = {name: round(h[name].duty * 255) for name in CHANNELS}
-        mains = "$"
-        return (f"S:{int(h['nozzle0'].temperature)} @{duty['nozzle0']} "
-                f"T:{int(h['nozzle1'].temperature)} @{duty['nozzle1']} "
-                f"B:{int(h['bed'].temperature)} {mains}{duty['bed']} "
-                f"A:{int(h['ambient'].temperature)} *{duty['ambient']}\r\n").encode()
+        n0, n1, bed, amb = self.controllers()
+        return (f"S:{_c_int(n0.measured)} @{n0.pwm_duty} T:{_c_int(n1.measured)} "
+                f"@{n1.pwm_duty} B:{_c_int(bed.measured)} ${bed.pwm_duty} "
+                f"A:{_c_int(amb.measured)} *{amb.pwm_duty}\r\n").encode()
+
+
+def _read(plant) -> float:
+    """What the thermistor input gives: an open thermistor reads far below freezing."""
+    return plant.temperature if plant.thermistor_ok else OPEN_THERMISTOR
+
+
+def _c_int(value: float) -> int:
+    return int(value) if math.isfinite(value) else 0
+
+
+def _f8(value: float) -> bytes:
+    """The first 8 characters of printf("%f") of a float, NUL padded."""
+    return f"{float32(value):f}"[:8].encode().ljust(8, b"\0")

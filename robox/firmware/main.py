@@ -17,13 +17,13 @@ from robox.firmware.command import Command
 from robox.firmware.eeprom import Eeproms
 from robox.firmware.error_flags import ErrorFlags
 from robox.firmware.file_system import FileSystem
-from robox.firmware.gcode import Job
+from robox.firmware.gcode import NEXT_PASS, Job
 from robox.firmware.heaters import Heaters
 from robox.firmware.motion import Motion
 from robox.firmware.parameters import HoursCounter, Parameters
 from robox.firmware.position import Position
 from robox.firmware.reprogram import Reprogram
-from robox.firmware.user_interface import HOT_FLAG_BYTE, UserInterface
+from robox.firmware.user_interface import UserInterface
 from robox.formats.firmware import IMAGE_PAGES, PAGE_SIZE, flashed_image_pages, image_revision
 from robox.formats.firmware import word_sum as image_sum
 from robox.formats.protocol import ErrorBit
@@ -88,6 +88,7 @@ class Firmware:
         }
         for name, obj in self.objects.items():
             setattr(self, name, obj)  # fw.job etc.: the registry's entries, by name
+        self.eeproms.firmware = self
         for name in POWER_UP_ORDER:
             self.objects[name].initialise()
         self._maintained = [self.objects[name] for name in MAINTAIN_ORDER]
@@ -96,8 +97,8 @@ class Firmware:
         self.revision = image_revision(image[: pages * PAGE_SIZE]) or DEFAULT_REVISION
         if pages == 0 or image_sum(image[: pages * PAGE_SIZE]) != 0:
             self.errors.set(ErrorBit.FLASH_CHECKSUM)
-        if hw.card.present and self.file_system.nonvolatile(HOT_FLAG_BYTE):
-            self.errors.set(ErrorBit.POWEROFF_WHILST_HOT)
+        if hw.card.present:
+            self.heaters.check_for_poweroff_whilst_hot()
 
     def request_reset(self) -> None:
         self.reset_requested = True
@@ -116,14 +117,17 @@ class Firmware:
             obj.maintain()
 
     def maintain_job(self) -> None:
-        self.job.maintain_job()
+        if not self.command.busy_line():  # the printer is still inside maintain_commands
+            self.job.maintain_job()
 
     def busy(self) -> bool:
         """True when the next pass has work to do now (so the clock must not jump)."""
         usb = self.hw.usb
-        return bool(usb.received or self.command.buffer or self.command.pending_after_reply
-                    or self.job.runnable() or self.reset_requested
-                    or not all(self.eeproms.quiet(i) for i in range(3)))
+        command = self.command
+        line_ready = command.line is not None and command.waiting in (None, NEXT_PASS)
+        return bool((usb.received and not command.deaf) or line_ready
+                    or command.pending_after_reply or self.job.runnable()
+                    or self.reset_requested or not all(self.eeproms.quiet(i) for i in range(3)))
 
     def next_step(self, limit: float | None = None) -> float:
         """How far the clock may move before the next pass."""
@@ -131,8 +135,9 @@ class Firmware:
             return PASS_S
         now = self.clock.now
         events = [now + IDLE_STEP_S]
-        wait = self.job.waiting
-        if wait is not None:
+        for wait in (self.job.waiting, self.command.waiting):
+            if wait is None:
+                continue
             if wait.until is not None:
                 events.append(wait.until)
             if wait.heater is not None:
@@ -142,7 +147,7 @@ class Firmware:
             events.append(motion_event)
         if self.heaters.any_on():
             events.append(now + HEATER_STEP_S)
-        events.append(self.hours.next_tick)
+        events += [self.hours.next_tick, self.heaters.sample_due, self.eeproms.update_due]
         step = min(events) - now
         if limit is not None:
             step = min(step, limit)

@@ -79,6 +79,9 @@ class Motion:
         """Queue a block (the caller has waited for room); it starts at the next maintain."""
         self.queue.append(block)
 
+    def motors_off(self) -> None:
+        """M84: the drivers are disabled; positions are kept (the model has no step loss)."""
+
     def stop(self) -> None:
         """Abort: finish the move under way, drop the rest (their steps never happen)."""
         self.queue.clear()

@@ -11,7 +11,7 @@ from __future__ import annotations
 import struct
 from typing import ClassVar
 
-from robox.firmware.gcode import parse_words
+from robox.firmware.cline import Line
 from robox.formats import float8
 from robox.formats.firmware import (
     DEFAULT_OFFSET,
@@ -80,16 +80,19 @@ class Parameters:
         raw = self.fw.hw.flash.read(STORE, STORE_SIZE)
         if struct.unpack("<I", raw[:4])[0] != self.version:
             return  # another build's parameters (or none): keep what we have
-        for line in raw[4:].split(b"\xff", 1)[0].split(b"\n"):
-            words = parse_words(line)
-            if words and words[0][0] == "M" and int(words[0][1]) in self.CODES:
-                self.set_from_gcode(int(words[0][1]), dict(words[1:]))
+        for text in raw[4:].split(b"\xff", 1)[0].split(b"\n"):
+            line = Line(text)
+            if line.has("M"):
+                self.set_from_line(line.int("M"), line)
 
-    def set_from_gcode(self, code: int, p: dict) -> None:
-        group = self.values[f"M{code}"]
-        for key, value in p.items():
-            if key in group:
-                group[key] = value
+    def set_from_line(self, code: int, line: Line) -> None:
+        """A parameter-setting M-code: each of its group's letters present is set."""
+        group = self.values.get(f"M{code}")
+        if group is None:
+            return
+        for key in group:
+            if line.has(key):
+                group[key] = line.float(key)
 
     def m503_text(self) -> bytes:
         out = [f"Ver: {self.version:08x}"]
@@ -141,7 +144,6 @@ class HoursCounter:
         self.unsaved = 0
 
     def maintain(self) -> None:
-        self.fw.position.bookkeeping()
         if self.fw.clock.now < self.next_tick:
             return
         self.next_tick += 7.2

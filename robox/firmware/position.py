@@ -13,12 +13,13 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 
+from robox.firmware.cline import Line, float32, strtof
 from robox.firmware.gcode import Wait, wait_for
 from robox.firmware.motion import Block
 from robox.formats.eeprom import EepromIndex
 
 SEGMENT_MM = 2.0
-BOOKKEEPING_S = 7.2
+PARKING_Z = 2.0
 HOMING_SPEED = {"X": 60.0, "Y": 60.0, "Z": 3.0, "B": 4.0}
 EXTRUDERS = {"E": EepromIndex.REEL0, "D": EepromIndex.REEL1}
 DEFAULT_DIAMETER = 1.75
@@ -32,43 +33,44 @@ class Position:
         self.logical = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
         self.applied_offset = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}  # in the machine
         self.relative = False
-        self.feed_rate = 3000.0  # mm/min
+        self.homed: set[str] = set()  # axes homed or set by G92 (B: a tool selected)
+        self.home_delta = dict.fromkeys("XYZEDB", 0.0)
+        self.levelling_points = 0
+        self.z_washout = 0.0
+        self.unpark_state: dict | None = None
+        self.feed_rate = 600.0  # mm/min (the firmware's 10 mm/s)
         self.tool = 0
         self.residue = dict.fromkeys("XYZEDB", 0.0)
         self.filament = {"E": [DEFAULT_DIAMETER, 1.0], "D": [DEFAULT_DIAMETER, 1.0]}
         self.feed_multiplier = {"E": 1.0, "D": 1.0}
-        self.used_mm = {"E": 0.0, "D": 0.0}  # filament used since the last bookkeeping
         self.total_mm = {"E": 0.0, "D": 0.0}
-        self.next_bookkeeping = self.fw.clock.now + BOOKKEEPING_S
-        self.fw.eeproms.on_valid.append(self._eeprom_valid)
+        # filament queued since the last bookkeeping, in mm (float, as the firmware keeps it)
+        self.e_destination = {"E": 0.0, "D": 0.0}
 
     # ------------------------------------------------------ reel settings
-    def _eeprom_valid(self, index) -> None:
-        if index in (EepromIndex.REEL0, EepromIndex.REEL1):
-            self._load_reel("E" if index == EepromIndex.REEL0 else "D")
-
-    def _load_reel(self, extruder: str) -> None:
+    def filament_info_from_reel(self) -> None:
+        """Diameter, multiplier and feed-rate multiplier of each extruder from its reel;
+        a value stays as it is when that reel is not VALID."""
         eeproms = self.fw.eeproms
-        index = EXTRUDERS[extruder]
-        if eeproms.status(index) != 2:
-            return
-        diameter = eeproms.get_float(index, "filament_diameter")
-        multiplier = eeproms.get_float(index, "filament_multiplier")
-        feed = eeproms.get_float(index, "feed_rate_multiplier")
-        if diameter > 0:
-            self.filament[extruder] = [diameter, multiplier if multiplier > 0 else 1.0]
-        if feed > 0:
-            self.feed_multiplier[extruder] = feed
+        for extruder, index in EXTRUDERS.items():
+            diameter, multiplier = self.filament[extruder]
+            self.filament[extruder] = [eeproms.float_at(index, 0x50, diameter),
+                                       eeproms.float_at(index, 0x58, multiplier)]
+        for extruder, index in EXTRUDERS.items():
+            self.feed_multiplier[extruder] = eeproms.float_at(index, 0x60,
+                                                              self.feed_multiplier[extruder])
 
-    def reload_reels(self) -> None:
-        for extruder in "ED":
-            self._load_reel(extruder)
+    reload_reels = filament_info_from_reel
 
-    def set_filament_info(self, extruder: str, diameter: float, multiplier: float) -> None:
-        self.filament[extruder] = [diameter, multiplier]
-
-    def set_feed_rate_multiplier(self, extruder: str, value: float) -> None:
-        self.feed_multiplier[extruder] = value
+    def update_reel_filament_length(self) -> None:
+        """Every 7.2 s: whole millimetres queued since the last time come off each reel's
+        remaining length (the reel's field is rewritten even when nothing was used)."""
+        eeproms = self.fw.eeproms
+        for extruder, index in EXTRUDERS.items():
+            used = math.floor(self.e_destination[extruder])
+            eeproms.write_float_at(index, 0xB8,
+                                   float32(eeproms.float_at(index, 0xB8, 0.0) - used))
+            self.e_destination[extruder] = float32(self.e_destination[extruder] - used)
 
     def extruder_present(self, extruder: str) -> bool:
         if extruder == "E":
@@ -105,55 +107,107 @@ class Position:
         b = self.reported_position("B") * (-1 if self.tool == 1 else 1)
         return f"X:{x:f} Y:{y:f} Z:{z:f} B:{b:f} T:{self.tool}\r\n".encode()
 
-    def m119_text(self) -> bytes:
+    def _switches(self) -> dict[str, int]:
+        """Each switch as the firmware reads it (input XOR its invert setting)."""
         m = self.fw.hw.machine
         a = m.axes
-        flags = [a["X"].switch, a["Y"].switch, a["Z"].switch, m.z_top_switch, m.filament_e,
-                 m.filament_d, a["B"].switch, m.filament_e, m.filament_d]
-        x, y, z, zt, e, d, b, ei, di = (int(f) for f in flags)
-        return (f"M119 X:{x} Y:{y} Z:{z} Z+:{zt} E:{e} D:{d} B:{b} Eindex:{ei} "
-                f"Dindex:{di}\r\n").encode()
+        return {"X": a["X"].switch, "Y": a["Y"].switch, "Z": a["Z"].switch,
+                "E": m.filament_e, "D": m.filament_d, "B": a["B"].switch}
 
-    def filament_report(self) -> list[float]:
+    def m119_text(self) -> bytes:
+        m = self.fw.hw.machine
+        s = {k: int(bool(v)) for k, v in self._switches().items()}
+        return (f"M119 X:{s['X']} Y:{s['Y']} Z:{s['Z']} Z+:{int(m.z_top_switch)} "
+                f"E:{s['E']} D:{s['D']} B:{s['B']} Eindex:{int(m.index_e)} "
+                f"Dindex:{int(m.index_d)}\r\n").encode()
+
+    def switch_flags(self) -> bytes:
+        """Status bytes 27..33: X, Y, Z, E, D, B switches and the lid."""
+        flags = [*self._switches().values(), self.fw.hw.machine.lid_closed]
+        return bytes(0x31 if f else 0x30 for f in flags)
+
+    def index_and_z_top_flags(self) -> bytes:
+        m = self.fw.hw.machine
+        return bytes(0x31 if f else 0x30 for f in (m.index_e, m.index_d, m.z_top_switch))
+
+    def position_report(self) -> bytes:
+        """Status bytes 139..171: X, Y, Z, B as float8 (NUL padded), then the tool."""
+        x, y, z = (self.reported_position(a) for a in "XYZ")
+        b = self.reported_position("B") * (-1 if self.tool == 1 else 1)
+        return b"".join(_f8(v) for v in (x, y, z, b)) + b"%d" % self.tool
+
+    def filament_report(self) -> bytes:
+        """Status bytes 172..219: E and D diameters and multipliers, then the D and E
+        feed-rate multipliers."""
         (ed, em), (dd, dm) = self.filament["E"], self.filament["D"]
-        return [ed, em, dd, dm, self.feed_multiplier["D"], self.feed_multiplier["E"]]
+        values = (ed, em, dd, dm, self.feed_multiplier["D"], self.feed_multiplier["E"])
+        return b"".join(_f8(v) for v in values)
+
+    def set_filament_info(self, extruder: str, raw: bytes) -> None:
+        """0xc8/0xc9: diameter (at least 0.1) and multiplier (at least 0)."""
+        self.filament[extruder] = [max(0.1, strtof(raw[:8])), max(0.0, strtof(raw[8:16]))]
+
+    def set_feed_rate_multiplier(self, extruder: str, raw: bytes) -> None:
+        self.feed_multiplier[extruder] = max(0.0, strtof(raw[:8]))
 
     # ------------------------------------------------------------- moves
-    def select_tool(self, tool: int) -> Iterator[Wait]:
-        if tool in (0, 1):
-            yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-            self.tool = tool
+    def select_tool(self, tool: int, line: Line | None = None) -> Iterator[Wait]:
+        """T0/T1 (any other number is clamped): the valve axis counts as homed after it."""
+        tool = max(0, min(2, tool))
+        yield from wait_for(self.fw.motion.idle, Wait(motion=True))
+        self.tool = tool
+        self.homed.add("B")
 
-    def set_position(self, p: dict) -> None:
-        for axis in "XYZB":
-            if axis in p:
-                self.logical[axis] = p[axis]
+    def set_position(self, line: Line) -> Iterator[Wait]:
+        """G92: wait for motion, then X/Y/Z given are where the head is, and count as homed."""
+        yield from wait_for(self.fw.motion.idle, Wait(motion=True))
+        for axis in "XYZ":
+            if line.has(axis):
+                self.logical[axis] = line.float(axis)
+                self.homed.add(axis)
+
+    def delta_text(self, axis: str) -> bytes:
+        return f"{axis}delta:{self.home_delta[axis]:f}\r\n".encode()
 
     def filament_mm(self, extruder: str, volume: float) -> float:
+        """Volume (mm3) as filament length, in the firmware's float arithmetic."""
         diameter, multiplier = self.filament[extruder]
-        return volume * multiplier / (math.pi * diameter * diameter / 4.0)
+        return float32(float32(volume * multiplier) / (float32(diameter * diameter) * math.pi
+                                                       / 4.0))
 
-    def move(self, p: dict, speed_limit: float | None = None) -> Iterator[Wait]:
-        if "F" in p and p["F"] > 0:
+    def move(self, line: Line, rapid: bool = False) -> Iterator[Wait]:
+        """G0/G1. X/Y/Z move only once homed (or set by G92), the valve B once a tool has
+        been selected; E and D always. A move's target is kept even when it is dropped."""
+        p = {c: line.float(c) for c in "XYZEDBF" if line.has(c)}
+        if "F" in p:
             self.feed_rate = p["F"]
         target = dict(self.logical)
-        for axis in "XYZB":
+        distance = 0.0
+        for axis in "XYZ":
             if axis in p:
-                target[axis] = target[axis] + p[axis] if self.relative else p[axis]
+                delta = p[axis] if self.relative else float32(p[axis] - self.logical[axis])
+                target[axis] = float32(self.logical[axis] + delta)
+                distance = float32(distance + float32(delta * delta))
+        if "B" in p:
+            target["B"] = p["B"]
+        segments = 1 + int(float32(math.sqrt(distance)) / SEGMENT_MM)
         extrude = {e: self.filament_mm(e, p[e]) for e in "ED" if e in p}
+        for e, mm in extrude.items():
+            per = float32(mm / segments)
+            for _ in range(segments):
+                self.e_destination[e] = float32(self.e_destination[e] + per)
         # the machine goes to the logical target plus the current tool's offset
         offset = {a: self._offset(a) for a in "XYZB"}
         delta = {a: target[a] + offset[a] - self.logical[a] - self.applied_offset[a]
-                 for a in "XYZB"}
-        self.applied_offset = offset
-        travel = math.sqrt(delta["X"] ** 2 + delta["Y"] ** 2 + delta["Z"] ** 2)
-        segments = max(1, math.ceil(travel / SEGMENT_MM - 1e-9))
-        speed = self.feed_rate / 60.0
-        if extrude:
+                 if a in self.homed else 0.0 for a in "XYZB"}
+        self.applied_offset = {a: offset[a] if a in self.homed else self.applied_offset[a]
+                               for a in "XYZB"}
+        speed = self.feed_rate / 60.0 if self.feed_rate > 0 else 1e9
+        if rapid:
+            speed = 1e9
+        elif extrude:
             extruder = "D" if "D" in extrude and "E" not in extrude else "E"
             speed *= self.feed_multiplier[extruder]
-        if speed_limit is not None:
-            speed = min(speed, speed_limit)
         for _ in range(segments):
             part = {a: delta[a] / segments for a in "XYZB"}
             part.update({e: mm / segments for e, mm in extrude.items()})
@@ -186,11 +240,14 @@ class Position:
         yield from wait_for(motion.room, Wait(motion=True))
         motion.add(Block(steps, length, max(speed, 0.1), direction))
 
-    def home(self, axes: list[str]) -> Iterator[Wait]:
-        """Each axis runs towards its switch until it closes (the move ends there)."""
+    def home(self, line: Line) -> Iterator[Wait]:
+        """G28 with the axes named (G28 alone homes nothing): each runs towards its switch
+        until it closes. Mechanics in detail belong to the machine model."""
         motion = self.fw.motion
         yield from wait_for(motion.idle, Wait(motion=True))
-        for axis in axes:
+        for axis in "XYZ":
+            if not line.has(axis):
+                continue
             hw_axis = self.fw.hw.machine.axes[axis]
             distance = max(0, hw_axis.position) / self.steps_per_mm(axis)
             motion.add(Block({}, distance, HOMING_SPEED[axis], homing=axis))
@@ -198,52 +255,83 @@ class Position:
             self.logical[axis] = 0.0
             self.residue[axis] = 0.0
             self.applied_offset[axis] = 0.0
+            self.homed.add(axis)
+
+    def _go(self, target: dict[str, float]) -> Iterator[Wait]:
+        """A rapid move of the homed axes to `target` (logical coordinates)."""
+        delta = {a: target[a] - self.logical[a] if a in self.homed else 0.0 for a in "XYZB"}
+        self.logical = dict(target)
+        yield from self._segment(delta, 1e9)
+
+    def move_filament_until_slip(self, line: Line) -> Iterator[Wait]:
+        """G36: with no filament at the sensor nothing moves."""
+        machine = self.fw.hw.machine
+        for extruder in "ED":
+            if line.has(extruder):
+                yield from wait_for(self.fw.motion.idle, Wait(motion=True))
+                present = machine.filament_e if extruder == "E" else machine.filament_d
+                if not present:
+                    continue
+
+    def unlock_cover(self, line: Line) -> Iterator[Wait]:
+        """G37: heaters off and the bed left to cool first, unless S."""
+        if not line.has("S"):
+            self.fw.heaters.turn_off()
+            yield from self.fw.heaters.wait_for_bed_cool()
+
+    def level_gantry(self) -> Iterator[Wait]:
+        """G38 needs two Z probe points; without them it does nothing."""
+        if self.levelling_points < 2:
+            return
+        yield from wait_for(self.fw.motion.idle, Wait(motion=True))
+
+    def level_bed(self, line: Line) -> None:
+        if line.has("S"):
+            self.z_washout = line.float("S")
+        else:
+            self.levelling_points = 0
+
+    def filament_load_unload(self, code: int, line: Line) -> Iterator[Wait]:
+        """M120/M121/M122: the moves wait for the queue; loading needs filament."""
+        for extruder in "ED":
+            if line.has(extruder):
+                yield from wait_for(self.fw.motion.idle, Wait(motion=True))
 
     def completed(self, block: Block) -> None:
         for extruder in "ED":
             if extruder in block.steps:
                 mm = block.steps[extruder] / self.steps_per_mm(extruder)
-                self.used_mm[extruder] += mm
                 self.total_mm[extruder] += mm
 
     # ----------------------------------------------------- pause parking
-    def save_state(self) -> dict:
-        return {"logical": dict(self.logical), "feed_rate": self.feed_rate,
-                "relative": self.relative, "tool": self.tool}
-
-    def park(self, where: dict, lift: float) -> Iterator[Wait]:
-        relative, feed = self.relative, self.feed_rate
-        self.relative = False
-        z = min(self.logical["Z"] + lift, 100.0)
-        yield from self.move({"Z": z, "F": 600.0})
-        yield from self.move({"X": where["X"], "Y": where["Y"], "F": 6000.0})
+    def park(self) -> Iterator[Wait]:
+        """Wait for motion, remember where the job was, close the valve, lift Z 2 mm."""
         yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-        self.relative, self.feed_rate = relative, feed
-
-    def restore_state(self, state: dict) -> Iterator[Wait]:
-        self.relative = False
-        saved = state["logical"]
-        yield from self.move({"X": saved["X"], "Y": saved["Y"], "F": 6000.0})
-        yield from self.move({"Z": saved["Z"], "F": 600.0})
+        self.unpark_state = {"logical": dict(self.logical), "feed_rate": self.feed_rate,
+                             "relative": self.relative, "tool": self.tool}
+        target = dict(self.logical)
+        target["B"] = 0.0
+        yield from self._go(target)
+        target["Z"] += PARKING_Z
+        yield from self._go(target)
         yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-        self.logical = dict(saved)
-        self.feed_rate, self.relative, self.tool = (state["feed_rate"], state["relative"],
-                                                    state["tool"])
 
-    # ------------------------------------------------------- bookkeeping
-    def bookkeeping(self) -> None:
-        """Every 7.2 s (the hours counter calls it): filament and head hours to the EEPROMs."""
-        now = self.fw.clock.now
-        if now < self.next_bookkeeping:
+    def unpark(self) -> Iterator[Wait]:
+        """Return to where the job was parked and restore its modes and tool."""
+        state = self.unpark_state
+        if state is None:
             return
-        self.next_bookkeeping = now + BOOKKEEPING_S
-        eeproms = self.fw.eeproms
-        for extruder, index in EXTRUDERS.items():
-            whole = math.trunc(self.used_mm[extruder])
-            if whole and eeproms.status(index) == 2:
-                remaining = eeproms.get_float(index, "remaining_filament")
-                eeproms.set_float(index, "remaining_filament", remaining - whole)
-                self.used_mm[extruder] -= whole
-        if self.fw.heaters.head_hot() and eeproms.status(EepromIndex.HEAD) == 2:
-            hours = eeproms.get_float(EepromIndex.HEAD, "head_hours")
-            eeproms.set_float(EepromIndex.HEAD, "head_hours", hours + 0.002)
+        self.relative = state["relative"]
+        self.feed_rate = state["feed_rate"]
+        saved = state["logical"]
+        target = dict(saved)
+        target["B"] = min(self.logical["B"], saved["B"])
+        if state["tool"] != self.tool:
+            self.tool = state["tool"]
+        yield from self._go(target)
+        yield from self._go(dict(saved))
+
+
+def _f8(value: float) -> bytes:
+    """The first 8 characters of printf("%f") of a float, NUL padded."""
+    return f"{float32(value):f}"[:8].encode().ljust(8, b"\0")

@@ -53,6 +53,18 @@ class ErrorBit(IntEnum):
     BED_TEMPERATURE_DROOP = 41
 
 
+#: Errors that never pause a running job.
+NEVER_PAUSE = frozenset({ErrorBit.B_POSITION_WARNING, ErrorBit.B_POSITION_LOST,
+                         ErrorBit.POWEROFF_WHILST_HOT, ErrorBit.E_NO_FILAMENT,
+                         ErrorBit.D_NO_FILAMENT})
+#: Errors that do not pause a job while a host is connected (it asked for the ack/errors
+#: report within the last 5 s).
+NO_PAUSE_WHILE_CONNECTED = frozenset({ErrorBit.NOZZLE_FLUSH_NEEDED, ErrorBit.E_FILAMENT_SLIP,
+                                      ErrorBit.D_FILAMENT_SLIP})
+PAUSE_MASK = sum(1 << bit for bit in range(64) if bit not in NEVER_PAUSE)
+PAUSE_MASK_CONNECTED = PAUSE_MASK & ~sum(1 << bit for bit in NO_PAUSE_WHILE_CONNECTED)
+
+
 #: Words a person reads for each error bit.
 ERROR_TEXT = {
     ErrorBit.SD_CARD: "SD card error",

@@ -49,9 +49,9 @@ class Machine:
         "E": Axis("E", has_switch=False), "D": Axis("D", has_switch=False),
         "B": Axis("B", 0, 2 * 2500)})
     heaters: dict[str, ThermalModel] = field(default_factory=lambda: {
-        "nozzle0": ThermalModel("nozzle0", gain=330.0, tau=25.0),
-        "nozzle1": ThermalModel("nozzle1", gain=330.0, tau=25.0),
-        "bed": ThermalModel("bed", gain=140.0, tau=240.0),
+        "nozzle0": ThermalModel("nozzle0", gain=253.0, tau=71.0),
+        "nozzle1": ThermalModel("nozzle1", gain=253.0, tau=71.0),
+        "bed": ThermalModel("bed", gain=150.0, tau=280.0),
         "ambient": ThermalModel("ambient", gain=40.0, tau=600.0)})
     head_fan: float = 0.0
     ambient_led: tuple[int, int, int] = (0, 0, 0)
@@ -59,11 +59,15 @@ class Machine:
     lid_closed: bool = True
     button_pressed: bool = False
     head_power: bool = True
-    filament_e: bool = True
+    head_shorted: bool = False
+    head_lights: bool = False
+    filament_e: bool = False  # filament at the E / D sensor
     filament_d: bool = False
+    index_e: bool = True  # index wheel input levels
+    index_d: bool = False
     z_top_switch: bool = False
     supply_24v: bool = True
-    hardware_revision: int = 4
+    hardware_revision: int = 2
 
     def advance(self, seconds: float) -> None:
         for heater in self.heaters.values():

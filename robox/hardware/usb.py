@@ -1,9 +1,12 @@
 """The USB CDC link between a host and the printer, as the firmware and the host see it.
 
 Bytes the host writes wait in the device's receive endpoint until the firmware
-takes them. The firmware has one transmit buffer: a reply stays "in flight"
-until the host has read all of it, and a reply sent meanwhile clobbers it (the
-firmware then sets USB_TX). A disconnect drops everything in both directions.
+takes them. Replies queue for the host in the order they were sent: the
+recordings of the real firmware show every reply of a burst arriving (thirty
+Pronterface `ok`s from one chunk of text, say) and USB_TX never set, so a
+reply is never clobbered here. A reply counts as "in flight" until the host
+has read it (a reset waits for that). A disconnect drops everything in both
+directions.
 """
 
 from __future__ import annotations
@@ -23,7 +26,6 @@ class UsbLink:
         self._rx = bytearray()  # host -> device, not yet taken by the firmware
         self._tx = bytearray()  # the reply in flight
         self.replies = 0
-        self.clobbered = 0
         self.bytes_in = 0
         self.bytes_out = 0
 
@@ -68,13 +70,10 @@ class UsbLink:
         return bool(self._tx)
 
     def device_send(self, reply: bytes) -> bool:
-        """Queue a reply; False if one was still in flight (it is clobbered)."""
-        clean = not self._tx
-        if not clean:
-            self.clobbered += 1
+        """Queue a reply for the host (dropped while disconnected)."""
         if not self.connected:
-            return clean
-        self._tx[:] = reply
+            return True
+        self._tx += reply
         self.replies += 1
         self.bytes_out += len(reply)
-        return clean
+        return True

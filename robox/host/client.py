@@ -18,6 +18,7 @@ from robox.formats import eeprom as eeprom_format
 from robox.formats import float8
 from robox.formats.firmware import check_binary, to_sd_text
 from robox.formats.protocol import (
+    PAUSE_MASK_CONNECTED,
     REPLY_TO,
     ErrorBit,
     error_bits,
@@ -28,9 +29,23 @@ from robox.formats.sdcard import make_id
 from robox.host.transport import NoReply, TransportError
 
 CHUNK = 512
+#: While a job prints from its own upload, the status is checked every this many chunks
+#: for the pause a printer makes when its reader catches up with the writer.
+CATCH_UP_CHECK_CHUNKS = 8
 EEPROMS = {"head": 0, "reel0": 1, "reel1": 2}
 PAUSE_STATES = {"0": "running", "1": "pausing", "2": "paused", "3": "resuming",
                 "4": "selfie pause"}
+
+
+def catch_up_lines(data: bytes, chunks: int | None = None) -> set[int]:
+    """The line numbers at which a job reading `data` pauses if its reader catches up
+    with the upload after the first k chunks (k = 1..chunks, default all of them)."""
+    total = len(data) // CHUNK if chunks is None else chunks
+    points, lines = set(), 0
+    for k in range(total):
+        lines += data.count(b"\r", k * CHUNK, (k + 1) * CHUNK)
+        points.add(lines)
+    return points
 
 
 class PrinterError(RoboxError):
@@ -256,12 +271,39 @@ class Printer:
         self.ack(bytes([0xF8 + EEPROMS[which]]), f"format {which} EEPROM")
 
     # --------------------------------------------------------- send a job
+    def resume_if_caught_up(self, name: str, catch_up_lines: set[int],
+                            notice: Callable[[str], None] | None = None) -> bool:
+        """Resume job `name` if it is paused because its reader caught up with the
+        upload: the printer then pauses and stays paused until a host resumes it.
+
+        That pause is told apart from others by where it happened. The reader reads the
+        file a 512-byte chunk at a time, so it catches up having run exactly the complete
+        lines of the first k chunks, for some k stored: `catch_up_lines` holds those line
+        counts. A pause at one of them with no error latched that pauses a job is taken
+        as the catch-up; any other pause (the user's, the job's own M1, an error) is left
+        alone, and `notice` hears of it."""
+        status = self.status()
+        if status.job != name or status.pause not in ("pausing", "paused"):
+            return False
+        pausing = self.errors() & PAUSE_MASK_CONNECTED
+        if not pausing and status.line in catch_up_lines:
+            self.resume()
+            return True
+        if notice is not None:
+            reason = f"errors: {', '.join(error_names(pausing))}" if pausing else \
+                "by the user or the job"
+            notice(f"{name} is {status.pause} at line {status.line} ({reason}); "
+                   "it is left paused")
+        return False
+
     def send_file(self, data: bytes, file_id: str, job: bool = True, run: bool = True,
                   resume: bool = False,
-                  progress: Callable[[int, int], None] | None = None) -> None:
+                  progress: Callable[[int, int], None] | None = None,
+                  notice: Callable[[str], None] | None = None) -> None:
         """Store `data` as a file: start, chunks, end. A job starts printing once more
-        than one chunk is stored. With `resume`, continue the upload the printer reports
-        as open instead of starting over."""
+        than one chunk is stored, and is resumed whenever it pauses because it caught up
+        with the upload (see resume_if_caught_up). With `resume`, continue the upload the
+        printer reports as open instead of starting over."""
         stored = make_id(file_id)
         name = stored.rstrip(b"\0").decode("ascii")
         chunks = len(data) // CHUNK
@@ -274,20 +316,37 @@ class Printer:
         else:
             self.ack((b"\x97" if job else b"\x90") + stored, f"start {name}")
         started = resume and first > 1
+        watch = job and run
+        noticed = set()
+
+        def tell(message: str) -> None:
+            if notice is not None and message.split(" (")[0] not in noticed:
+                noticed.add(message.split(" (")[0])
+                notice(message)
+
+        caught_up_at = catch_up_lines(data, first)
+        lines = max(caught_up_at, default=0)
         for sequence in range(first, chunks):
             block = data[sequence * CHUNK : (sequence + 1) * CHUNK]
             self.ack(b"\x91" + f"{sequence:08x}".encode() + block, f"chunk {sequence}")
+            lines += block.count(b"\r")
+            caught_up_at.add(lines)
             if progress:
                 progress((sequence + 1) * CHUNK, len(data))
-            if job and run and not started and sequence >= 1:
+            if watch and not started and sequence >= 1:
                 self.run_job(name)
                 started = True
+            elif watch and started and sequence % CATCH_UP_CHECK_CHUNKS == 0:
+                self.resume_if_caught_up(name, caught_up_at, tell)
         tail = data[chunks * CHUNK :]
         self.ack(b"\x92" + f"{chunks:08x}{len(tail):04x}".encode() + tail, f"end {name}")
         if progress:
             progress(len(data), len(data))
-        if job and run and not started:
+        if watch and not started:
             self.run_job(name)
+        elif watch:
+            # a pause made while the last chunks were on their way stays until resumed
+            self.resume_if_caught_up(name, caught_up_at, tell)
 
     # ---------------------------------------------------- update firmware
     def update_firmware(self, image: bytes, file_id: str = "robox_firmware",

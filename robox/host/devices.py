@@ -121,6 +121,9 @@ def _sim(directory: Path) -> Iterator[Printer]:
         printer.virtual = virtual
         yield printer
     finally:
+        # the in-process printer is switched off after each command: a cooled head is
+        # one that a printer left on would have by the next command
+        virtual.cool_down()
         virtual.settle()
         virtual.close()
 

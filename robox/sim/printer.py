@@ -133,6 +133,15 @@ class VirtualPrinter:
         return self.run_until(lambda: all(fw.eeproms.quiet(i) for i in range(3))
                               and fw.command.pending_after_reply is None, timeout)
 
+    def cool_down(self, timeout: float = 3600.0) -> bool:
+        """With every heater off, let the head cool below the "hot" mark (and the card
+        record it), as a printer left switched on would before someone turns it off."""
+        heaters = self.firmware.heaters
+        if heaters.any_on():
+            return False
+        return self.run_until(lambda: not heaters.head_hot_now() and
+                              not self.firmware.file_system.nonvolatile(0), timeout)
+
     # ---------------------------------------------------------- persistence
     def save_chips(self) -> None:
         if self.state_dir is None:

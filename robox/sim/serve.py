@@ -3,6 +3,13 @@
 The simulated clock either runs as fast as the work needs (jumping over waits,
 standing still while nothing is pending), or is paced to the wall clock
 (`speed` 1 = real time, 10 = ten times faster). Real time lives here only.
+
+Running fast, the clock still waits for a connected host: the printer counts a
+host as connected only if it asked for the error report within the last 5 s of
+the printer's time, so while one is, the clock stops `FAST_SLICE_S` short of
+that lapse until the host speaks again (or has said nothing for
+`HOST_QUIET_S` of wall time, when it is taken to have gone). A host polling
+twice a second stays connected, as with a real printer.
 """
 
 from __future__ import annotations
@@ -13,9 +20,12 @@ import signal
 import time
 import tty
 
+from robox.firmware.command import HOST_CONNECTED_S
 from robox.sim.printer import VirtualPrinter
 
 READ_SIZE = 4096
+FAST_SLICE_S = 1.0
+HOST_QUIET_S = 1.0
 
 
 class PtyServer:
@@ -28,6 +38,7 @@ class PtyServer:
         self.path = os.ttyname(self.slave)
         self.stopping = False
         self._pending_out = bytearray()
+        self._last_input = 0.0
 
     def stop(self, *_args) -> None:
         self.stopping = True
@@ -41,6 +52,7 @@ class PtyServer:
             return
         if data:
             self.printer.usb.host_write(data)
+            self._last_input = time.monotonic()
 
     def _pump_output(self) -> None:
         usb = self.printer.usb
@@ -61,16 +73,31 @@ class PtyServer:
         return fw.busy() or fw.job.running or fw.job.current is not None or \
             not fw.motion.idle() or fw.heaters.any_on()
 
+    def _host_turn(self) -> float | None:
+        """Fast mode: the printer time at which a connected host must be heard from
+        again (None when no host is connected, or it has gone quiet)."""
+        command = self.printer.firmware.command
+        if not command.host_connected() or \
+                time.monotonic() - self._last_input > HOST_QUIET_S:
+            return None
+        return command.last_ack_report + HOST_CONNECTED_S - FAST_SLICE_S
+
     def serve_once(self, timeout: float = 0.05) -> None:
         """Wait for the host (at most `timeout` s), then run the firmware."""
         fw = self.printer.firmware
-        wait = 0.0 if (self.speed is None and self._work_pending()) else timeout
+        turn = self._host_turn() if self.speed is None else None
+        held = turn is not None and fw.clock.now >= turn
+        wait = 0.0 if (self.speed is None and self._work_pending() and not held) else timeout
         readable, _, _ = select.select([self.master], [], [], wait)
         if readable:
             self._pump_input()
         if self.speed is None:
             passes = 0
-            while passes < 2000 and (self._work_pending() or passes == 0):
+            turn = self._host_turn()
+            until = fw.clock.now + FAST_SLICE_S if turn is None else min(
+                fw.clock.now + FAST_SLICE_S, turn)
+            while passes < 2000 and (self._work_pending() or passes == 0) and \
+                    fw.clock.now < until:
                 self.printer.run_pass()
                 passes += 1
                 if self.printer.usb.reply_waiting:

@@ -1,9 +1,11 @@
-"""Any byte sequence on the wire: no exception escapes, the state stays usable, and the
-stream resynchronises on the next command."""
+"""Any byte sequence on the wire: no exception escapes, and the printer either answers the
+next command or is, as the firmware would be, still collecting an incomplete one."""
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from robox.firmware.command import FIXED, VARIABLE, get_hex
+from robox.firmware.gcode import line_length
 from robox.sim.printer import VirtualPrinter
 from tests.firmware.wire import Wire
 
@@ -15,6 +17,24 @@ command_bytes = st.sampled_from([0x90, 0x91, 0x92, 0x93, 0x94, 0x95, 0x96, 0x97,
 chunks = st.lists(st.one_of(st.binary(max_size=40), command_bytes.map(lambda b: bytes([b])),
                             st.sampled_from([b"0001", b"G1 X5\r", b"M105\r", b"\r\n", b"\x00"])),
                   max_size=30)
+
+
+def waiting_for_more(wire: Wire) -> bool:
+    """True when the receive buffer starts with a command (or line) still incomplete."""
+    command = wire.fw.command
+    buf = bytes(command.buffer)
+    if command.deaf:
+        return True
+    if not command.robox_mode:
+        return bool(buf) and line_length(buf) == 0
+    if not buf or (buf[0] not in FIXED and buf[0] not in VARIABLE):
+        return False
+    if buf[0] in FIXED:
+        return len(buf) < 1 + FIXED[buf[0]]
+    header, at, digits = VARIABLE[buf[0]]
+    if len(buf) < 1 + header:
+        return True
+    return len(buf) < 1 + header + (get_hex(buf[1 + at : 1 + at + digits]) & 0xFFFF)
 
 
 def drain(wire: Wire) -> None:
@@ -33,8 +53,15 @@ def test_random_robox_streams_never_break_the_model(parts):
         wire.printer.run_pass()
     drain(wire)
     assert wire.fw.faults == []
-    reply = wire.raw(b"\xb0")  # resynchronised: a status report comes back whole
-    assert reply[0] == 0xE1 and len(reply) == 222
+    wire.usb.host_write(b"\xb0")
+    wire.printer.run_until(lambda: wire.usb.reply_waiting > 0, 0.5)
+    if wire.usb.reply_waiting:
+        drain(wire)
+    else:
+        assert waiting_for_more(wire)
+    # start the next example from a freshly reset printer
+    wire.fw.command.initialise()
+    wire.fw.command.robox_mode = True
     wire.raw(b"\xc0")
     wire.raw(b"\xff")
     drain(wire)
@@ -55,4 +82,7 @@ def test_random_pronterface_text_is_answered_or_ignored(parts):
     out = b""
     while wire.usb.reply_waiting:
         out += wire.usb.host_read(4096)
-    assert out.endswith(b"ok\r\n")
+    if b"\0" in b"".join(parts):  # a NUL ends the C string: that line never completes
+        assert out.endswith(b"ok\r\n") or wire.fw.command.buffer
+    else:
+        assert out.endswith(b"ok\r\n")

@@ -91,7 +91,8 @@ def job_text(lines: list[str]) -> bytes:
 
 
 def circle_job(count: int, heat: bool = True) -> bytes:
-    lines = ["M140 S60", "M104 S210", "G28", "M190 S60", "M109 S210"] if heat else ["G28"]
+    lines = ["M140 S60", "M104 S210", "G28 X Y Z", "M190 S60", "M109 S210"] if heat else \
+        ["G28 X Y Z"]
     lines.append("G90")
     for i in range(count):
         a = i * 0.1

@@ -1,0 +1,134 @@
+"""A G-code line read the way the firmware reads it: C string functions over bytes.
+
+The printer never tokenises a line. A parameter is found with `strchr` (the
+first occurrence of that exact, case-sensitive letter anywhere in the line) and
+read with `strtol` / `strtoul` / `strtod` from the byte after it. So `g1 x10`
+is no G-code at all, `M104 S` has an S without a number, and in `G1 X1 X2` only
+the first X counts. The line ends at the first CR, LF, `;` or `(`, or at a NUL
+byte (the end of a C string). This module is that reading, in one place.
+
+Numbers: `strtod` accepts leading white space, a sign, decimal digits with an
+optional point and exponent, hexadecimal floats (`0x1.8p3`), `inf`/`infinity`
+and `nan`; the result is rounded to a C `float`, as `get_float` returns one.
+`strtol` saturates at the limits of the host's `long` (64 bits on the PC the
+reference recordings were made on).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import struct
+
+LONG_MAX = (1 << 63) - 1
+LONG_MIN = -(1 << 63)
+ULONG_MAX = (1 << 64) - 1
+_SPACE = b" \t\n\v\f\r"
+_DEC = re.compile(rb"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_HEX = re.compile(rb"([+-]?)0[xX]((?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-fA-F]+))"
+                  rb"(?:[pP]([+-]?\d+))?")
+_SPECIAL = re.compile(rb"([+-]?)(inf(?:inity)?|nan(?:\([0-9A-Za-z_]*\))?)", re.IGNORECASE)
+_INT = re.compile(rb"[+-]?\d+")
+_FLOAT32_MAX = 3.4028234663852886e38
+_END = re.compile(rb"[\r\n;(\0]")
+
+
+def float32(value: float) -> float:
+    """`value` rounded to C float precision (overflow gives infinity, as C does)."""
+    if math.isnan(value) or math.isinf(value):
+        return value
+    try:
+        return struct.unpack("<f", struct.pack("<f", value))[0]
+    except OverflowError:
+        return math.copysign(math.inf, value)
+
+
+def strtod(text: bytes) -> tuple[float, int]:
+    """C's strtod: the value and the number of bytes consumed (0: no number)."""
+    i = 0
+    while i < len(text) and text[i] in _SPACE:
+        i += 1
+    match = _HEX.match(text, i)
+    if match:
+        sign, digits, exponent = match.groups()
+        mantissa = digits.decode()
+        value = float.fromhex(("-" if sign == b"-" else "") + "0x" + mantissa +
+                              "p" + (exponent.decode() if exponent else "0")) \
+            if exponent is None or abs(int(exponent)) < 100000 else \
+            (math.inf if int(exponent) > 0 and mantissa.strip("0.") else 0.0)
+        return value, match.end()
+    match = _DEC.match(text, i)
+    if match:
+        return float(match.group()), match.end()
+    match = _SPECIAL.match(text, i)
+    if match:
+        sign, word = match.groups()
+        value = math.nan if word[:1] in b"nN" else math.inf
+        return (-value if sign == b"-" else value), match.end()
+    return 0.0, 0
+
+
+def strtol(text: bytes) -> int:
+    """C's strtol(text, NULL, 10), saturating at the limits of a 64-bit long."""
+    i = 0
+    while i < len(text) and text[i] in _SPACE:
+        i += 1
+    match = _INT.match(text, i)
+    if not match:
+        return 0
+    return max(LONG_MIN, min(LONG_MAX, int(match.group())))
+
+
+def strtoul(text: bytes) -> int:
+    """C's strtoul(text, NULL, 10): a negative number wraps, overflow saturates."""
+    i = 0
+    while i < len(text) and text[i] in _SPACE:
+        i += 1
+    match = _INT.match(text, i)
+    if not match:
+        return 0
+    value = int(match.group())
+    if abs(value) > ULONG_MAX:
+        return ULONG_MAX
+    return value & ULONG_MAX
+
+
+def strtof(text: bytes) -> float:
+    """C's strtof, as the firmware reads an 8-character float field."""
+    return float32(strtod(bytes(text).split(b"\0", 1)[0])[0])
+
+
+class Line:
+    """One G-code line as the firmware's parameter accessors see it."""
+
+    __slots__ = ("text",)
+
+    def __init__(self, raw: bytes):
+        end = _END.search(raw)
+        self.text = bytes(raw[: end.start()]) if end else bytes(raw)
+
+    def _after(self, letter: str) -> bytes | None:
+        at = self.text.find(letter.encode())
+        return None if at < 0 else self.text[at + 1 :]
+
+    def has(self, letter: str) -> bool:
+        return letter.encode() in self.text
+
+    def has_float(self, letter: str) -> bool:
+        rest = self._after(letter)
+        return rest is not None and strtod(rest)[1] > 0
+
+    def float(self, letter: str) -> float:
+        rest = self._after(letter)
+        return 0.0 if rest is None else float32(strtod(rest)[0])
+
+    def int(self, letter: str) -> int:
+        rest = self._after(letter)
+        return 0 if rest is None else strtol(rest)
+
+    def uint(self, letter: str) -> int:
+        rest = self._after(letter)
+        return 0 if rest is None else strtoul(rest)
+
+    def bool(self, letter: str) -> bool:
+        return self.int(letter) != 0
