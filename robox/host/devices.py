@@ -115,7 +115,7 @@ def _sim(directory: Path) -> Iterator[Printer]:
         device = usb.core.find(idVendor=VENDOR_ID, idProduct=PRODUCT_ID, backend=backend)
 
         def idle(seconds: float) -> None:
-            virtual.run_until(lambda: False, max(seconds, SIM_STEP_S))
+            virtual.run_until(lambda: False, max(seconds, SIM_STEP_S), between_lines=False)
 
         printer = Printer(UsbTransport(device), idle=idle)
         printer.virtual = virtual

@@ -122,8 +122,9 @@ class VirtualPrinter:
         self.firmware.run_pass(step)
         self.save_chips()
 
-    def run_until(self, condition, timeout: float = 3600.0) -> bool:
-        done = self.firmware.run_until(condition, timeout)
+    def run_until(self, condition, timeout: float = 3600.0, *, between_lines: bool = True
+                  ) -> bool:
+        done = self.firmware.run_until(condition, timeout, between_lines=between_lines)
         self.save_chips()
         return done
 

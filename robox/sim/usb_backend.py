@@ -182,8 +182,9 @@ class VirtualRoboxBackend(usb.backend.IBackend):
         usb_link = self.printer.usb
         if not usb_link.reply_waiting:
             seconds = (timeout or 1000) / 1000.0
+            # a USB host sees a reply as soon as it is sent, even mid-line
             self.printer.run_until(lambda: usb_link.reply_waiting > 0 or
-                                   not usb_link.connected, seconds)
+                                   not usb_link.connected, seconds, between_lines=False)
             self._check_connected()
         if not usb_link.reply_waiting:
             raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)

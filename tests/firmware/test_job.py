@@ -95,7 +95,7 @@ def test_pause_parks_resume_returns_and_the_job_finishes(wire):
     states = {status_fields(wire.raw(b"\xb0"))["pause"]}
     wire.printer.run_until(lambda: pause_char(wire) == b"2", 100)
     states.add(status_fields(wire.raw(b"\xb0"))["pause"])
-    assert states == {b"1", b"2"}
+    assert b"2" in states and states <= {b"1", b"2"}  # pausing, then paused and parked
     line = wire.fw.job.line_number
     wire.printer.run_until(lambda: False, 60)
     assert wire.fw.job.line_number == line  # nothing runs while paused
