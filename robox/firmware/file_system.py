@@ -476,11 +476,9 @@ class FileSystem:
     # ------------------------------------------------------------- reading
     def _find(self, file_id: bytes) -> int | None:
         d = self._dir
-        if file_id[0] == 0:
+        if file_id[0] == 0:  # the last job, among committed files only
             last = d.last_job
             if last != NO_JOB and d.in_ring(last) and d.slots[last].job:
-                return last
-            if self._writing and last == d.next_file:
                 return last
             return None
         if self._writing and d.slots[d.next_file].id == file_id:

@@ -1,0 +1,120 @@
+"""Behaviours learned from host sessions recorded from the real firmware
+(../shared/conformance): each test replays a few recorded steps with their bytes and
+expects exactly the bytes the real firmware answered."""
+
+import pytest
+
+from robox.sim.printer import VirtualPrinter
+
+STEP_S = 0.3
+
+
+@pytest.fixture
+def printer():
+    p = VirtualPrinter(card_blocks=16384)
+    p.run_until(lambda: False, 2.0)  # the recordings start 2 s after power-up
+    return p
+
+
+def robox(p, data: bytes) -> bytes:
+    """A Robox-mode step: write, then read the report that comes back."""
+    from robox.formats.protocol import reply_length
+
+    p.usb.host_write(data)
+    p.run_until(lambda: p.usb.reply_waiting > 0, STEP_S)
+    out = b""
+    while p.usb.reply_waiting:
+        out += p.usb.host_read(64)
+        n = reply_length(out)
+        if n is not None and len(out) >= n:
+            break
+        if not p.usb.reply_waiting:
+            p.run_until(lambda: p.usb.reply_waiting > 0, STEP_S)
+    return out
+
+
+def line(p, data: bytes) -> bytes:
+    """A Pronterface step: write, then collect until the output is quiet for 50 ms."""
+    p.usb.host_write(data)
+    p.run_until(lambda: p.usb.reply_waiting > 0, STEP_S)
+    out = b""
+    while True:
+        while p.usb.reply_waiting:
+            out += p.usb.host_read(64)
+        if not p.run_until(lambda: p.usb.reply_waiting > 0, 0.05):
+            return out
+
+
+ACK_CLEAN = b"\xe3" + b"0" * 64
+
+
+def test_status_at_power_up(printer):
+    # recorded (mixed, seed 0, step 0), less the measured temperatures check.py masks
+    status = robox(printer, b"\xb0")
+    assert status[17:40] == b"0000000000" + b"1110011" + b"1" + b"100" + b"10"
+    assert status[40:41] + status[49:65] == b"0210.0000210.0000"
+    assert status[65:66] + status[74:90] == b"0210.0000210.0000"  # nozzle 1: from reel 0
+    assert status[90:91] + status[99:115] == b"055.0000060.00000"
+    assert status[115:116] + status[124:134] == b"035.0000000"
+    assert status[134:172] == b"2200" + b"1" + b"0.000000" * 4 + b"0"
+    assert status[172:222] == b"1.7500001.0000001.7500001.0000001.0000001.000000" + b"12"
+
+
+def test_m104_s0_turns_off_but_keeps_the_target_and_m109_s_is_ignored(printer):
+    assert line(printer, b"M104 S200\n") == b"ok\r\n"
+    assert line(printer, b"M104 S0\r\n") == b"ok\r\n"
+    assert line(printer, b"M109 S0 ; comment\n") == b"ok\r\n"  # nozzle off: no wait
+    status = robox(printer, b"\xb0")
+    assert status[40:41] + status[49:57] == b"0200.0000"
+
+
+def test_bed_and_ambient_targets_clamp(printer):
+    # recorded 0xc3 with 999 for the bed targets and 100 for ambient (seed 80, step 10)
+    targets = b"35.000000.000000200.0000210.5000999.0000999.0000100.0000"
+    assert robox(printer, b"\xc3" + targets)[:1] == b"\xe3"
+    status = robox(printer, b"\xb0")
+    assert status[99:115] == b"160.0000160.0000" and status[124:132] == b"60.00000"
+
+
+def test_m111_to_m113_and_m999_report_deltas(printer):
+    assert robox(printer, b"\x950005M112\n") == b"\xe70015Ydelta:0.000000\r\nok\r\n"
+    assert robox(printer, b"\x950005M113\r") == b"\xe70015Zdelta:0.000000\r\nok\r\n"
+
+
+def test_a_reporting_0x95_runs_only_its_first_line(printer):
+    # the M in a comment makes the text "reporting"; its first line runs at once
+    assert robox(printer, b"\x95000eM82 ; comment ") == b"\xe70000"  # no line end yet
+    assert robox(printer, b"\x950011G1 X10 Y10 F3000\n") == b"\xe70000"  # queued
+
+
+def test_a_pronterface_burst_is_answered_line_by_line(printer):
+    # an unterminated line takes the Robox bytes after it as text (seed 31)
+    assert line(printer, b"G1 E1 F300") == b""
+    assert line(printer, b"\xa1") == b""
+    out = line(printer, b"\x91ffffffffG1 X1 Y1 F1200\nM104 S0\nG92 E0\n")
+    assert out == b"ok\r\n" * 3
+    assert not printer.firmware.command.robox_mode
+
+
+def test_1024_bytes_with_no_line_end_leave_the_printer_deaf(printer):
+    assert line(printer, b"M115" + b" " * 1020) == b""
+    assert printer.firmware.command.deaf
+    assert ("deaf", printer.firmware.events[-1][1]) == printer.firmware.events[-1]
+    assert line(printer, b"\nM115\n") == b""  # nothing is read any more
+
+
+def test_run_job_with_an_unknown_id_closes_the_read_file(printer):
+    assert robox(printer, b"\x94JOBBBBB000000002") == ACK_CLEAN
+    status = robox(printer, b"\xb0")
+    assert status[1:17] == bytes(16) and status[17:27] == b"0000000000"
+
+
+def test_a_chunk_before_any_start_file_is_a_sequence_error(printer):
+    reply = robox(printer, b"\x91" + b"00000000" + b"G90\n".ljust(512, b"\n"))
+    assert reply == b"\xe3" + b"01" + b"0" * 62
+
+
+def test_formatting_an_absent_reel_eeprom_does_not_stick(printer):
+    assert robox(printer, b"\xfa") == ACK_CLEAN
+    status = robox(printer, b"\xb0")
+    assert status[134:138] == b"2200"
