@@ -125,7 +125,7 @@ class Firmware:
         usb = self.hw.usb
         command = self.command
         line_ready = command.line is not None and command.waiting in (None, NEXT_PASS)
-        return bool((usb.received and not command.deaf) or line_ready
+        return bool((usb.received and not command.deaf) or usb.arriving or line_ready
                     or command.pending_after_reply or self.job.runnable()
                     or self.reset_requested or not all(self.eeproms.quiet(i) for i in range(3)))
 
@@ -161,6 +161,7 @@ class Firmware:
         self.hw.machine.advance(dt)
         self.do_everything_else()
         self.maintain_job()
+        self.hw.usb.frame()
         if self.reset_requested:
             self._reset()
 

@@ -11,6 +11,8 @@ directions.
 
 from __future__ import annotations
 
+from collections import deque
+
 from robox.errors import RoboxError
 
 PACKET_SIZE = 64
@@ -23,8 +25,9 @@ class LinkDown(RoboxError):
 class UsbLink:
     def __init__(self) -> None:
         self.connected = True
-        self._rx = bytearray()  # host -> device, not yet taken by the firmware
-        self._tx = bytearray()  # the reply in flight
+        self._rx = bytearray()  # host -> device, arrived, not yet taken by the firmware
+        self._transfers: deque[list] = deque()  # [data, packets still to cross]
+        self._tx = bytearray()  # replies the host has not read yet
         self.replies = 0
         self.bytes_in = 0
         self.bytes_out = 0
@@ -33,7 +36,8 @@ class UsbLink:
     def host_write(self, data: bytes) -> None:
         if not self.connected:
             raise LinkDown("the printer is not connected")
-        self._rx += data
+        if data:
+            self._transfers.append([bytes(data), -(-len(data) // PACKET_SIZE)])
         self.bytes_in += len(data)
 
     def host_read(self, limit: int = PACKET_SIZE) -> bytes:
@@ -50,12 +54,29 @@ class UsbLink:
     def disconnect(self) -> None:
         self.connected = False
         self._rx.clear()
+        self._transfers.clear()
         self._tx.clear()
 
     def connect(self) -> None:
         self.connected = True
 
     # --------------------------------------------------------- device side
+    def frame(self) -> None:
+        """One bus frame: the next packet of the host's oldest transfer crosses; a
+        transfer whose last packet is in reaches the receive endpoint whole."""
+        if not self._transfers:
+            return
+        head = self._transfers[0]
+        head[1] -= 1
+        if head[1] <= 0:
+            self._rx += head[0]
+            self._transfers.popleft()
+
+    @property
+    def arriving(self) -> bool:
+        """A transfer from the host is still crossing the bus."""
+        return bool(self._transfers)
+
     @property
     def received(self) -> int:
         return len(self._rx)

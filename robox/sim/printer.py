@@ -122,8 +122,14 @@ class VirtualPrinter:
         self.firmware.run_pass(step)
         self.save_chips()
 
-    def run_until(self, condition, timeout: float = 3600.0, *, between_lines: bool = True
-                  ) -> bool:
+    #: How run_until() looks by default: only between passes of the foreground loop (as the
+    #: recordings of the real firmware were made), or after every pass (a USB host's view).
+    between_lines = True
+
+    def run_until(self, condition, timeout: float = 3600.0, *,
+                  between_lines: bool | None = None) -> bool:
+        if between_lines is None:
+            between_lines = self.between_lines
         done = self.firmware.run_until(condition, timeout, between_lines=between_lines)
         self.save_chips()
         return done

@@ -1,4 +1,7 @@
-"""Raw protocol frames to and from a virtual printer, for tests (no host library)."""
+"""Raw protocol frames to and from a virtual printer, for tests (no host library).
+
+The wire reads replies as a USB host does: as soon as they are sent, even while the
+printer is inside a line that waits."""
 
 from __future__ import annotations
 
@@ -24,6 +27,7 @@ def float8(value: float) -> bytes:
 class Wire:
     def __init__(self, printer: VirtualPrinter | None = None):
         self.printer = printer or VirtualPrinter()
+        self.printer.between_lines = False  # a USB host's view: replies as soon as sent
         self.fw = self.printer.firmware
         self.usb = self.printer.usb
 
