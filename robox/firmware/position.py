@@ -20,6 +20,7 @@ from robox.formats.eeprom import EepromIndex
 
 SEGMENT_MM = 2.0
 PARKING_Z = 2.0
+TRAVEL = {"X": 226.0, "Y": 155.0, "Z": 100.2}
 HOMING_SPEED = {"X": 60.0, "Y": 60.0, "Z": 3.0, "B": 4.0}
 EXTRUDERS = {"E": EepromIndex.REEL0, "D": EepromIndex.REEL1}
 DEFAULT_DIAMETER = 1.75
@@ -30,8 +31,11 @@ class Position:
         self.fw = firmware
 
     def initialise(self) -> None:
+        # the firmware's bookkeeping: where moves should go (tool-relative) and where the
+        # machine will be once the queued moves are done, in mm (B: valve units)
         self.logical = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
-        self.applied_offset = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}  # in the machine
+        self.position = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
+        self.tool_offset = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
         self.relative = False
         self.homed: set[str] = set()  # axes homed or set by G92 (B: a tool selected)
         self.home_delta = dict.fromkeys("XYZEDB", 0.0)
@@ -40,7 +44,7 @@ class Position:
         self.unpark_state: dict | None = None
         self.feed_rate = 600.0  # mm/min (the firmware's 10 mm/s)
         self.tool = 0
-        self.residue = dict.fromkeys("XYZEDB", 0.0)
+        self.e_residue = {"E": 0.0, "D": 0.0}  # queued E/D not yet whole steps
         self.filament = {"E": [DEFAULT_DIAMETER, 1.0], "D": [DEFAULT_DIAMETER, 1.0]}
         self.feed_multiplier = {"E": 1.0, "D": 1.0}
         self.total_mm = {"E": 0.0, "D": 0.0}
@@ -83,24 +87,16 @@ class Position:
     def steps_per_mm(self, axis: str) -> float:
         return self.fw.parameters.values["M92"][axis]
 
-    def machine_mm(self, axis: str) -> float:
-        """Where the axis is, with the sub-step residue carried for the next move added
-        back (so an idle axis reports exactly the position it was sent to)."""
-        steps = self.fw.hw.machine.axes[axis].position
-        if self.fw.motion.idle():
-            steps += self.residue[axis]
-        return steps / self.steps_per_mm(axis)
-
     def reported_position(self, axis: str) -> float:
-        return self.machine_mm(axis) - self._offset(axis)
+        """Where the head will be once queued moves are done, less the tool offset."""
+        return float32(self.position[axis] - self.tool_offset[axis])
 
-    def _offset(self, axis: str) -> float:
-        if axis not in "XYZB":
+    def _eeprom_offset(self, tool: int, axis: str) -> float:
+        """Tool `tool`'s offset from the head EEPROM (tools 0 and 1; none for others)."""
+        if tool >= 2:
             return 0.0
-        eeproms = self.fw.eeproms
-        if eeproms.status(EepromIndex.HEAD) != 2:
-            return 0.0
-        return eeproms.get_float(EepromIndex.HEAD, f"nozzle{self.tool}_{axis.lower()}_offset")
+        address = 0x40 + 0x30 * tool + 8 * "XYZB".index(axis)
+        return self.fw.eeproms.float_at(EepromIndex.HEAD, address, 0.0)
 
     def m114_text(self) -> bytes:
         x, y, z = (self.reported_position(a) for a in "XYZ")
@@ -156,7 +152,10 @@ class Position:
         tool = max(0, min(2, tool))
         yield from wait_for(self.fw.motion.idle, Wait(motion=True))
         self.tool = tool
+        for axis in "XYZB":
+            self.tool_offset[axis] = self._eeprom_offset(tool, axis)
         self.homed.add("B")
+        yield from self._go(dict(self.logical))
 
     def set_position(self, line: Line) -> Iterator[Wait]:
         """G92: wait for motion, then X/Y/Z given are where the head is, and count as homed."""
@@ -164,6 +163,7 @@ class Position:
         for axis in "XYZ":
             if line.has(axis):
                 self.logical[axis] = line.float(axis)
+                self.position[axis] = float32(self.logical[axis] + self.tool_offset[axis])
                 self.homed.add(axis)
 
     def delta_text(self, axis: str) -> bytes:
@@ -196,34 +196,57 @@ class Position:
             per = float32(mm / segments)
             for _ in range(segments):
                 self.e_destination[e] = float32(self.e_destination[e] + per)
-        # the machine goes to the logical target plus the current tool's offset
-        offset = {a: self._offset(a) for a in "XYZB"}
-        delta = {a: target[a] + offset[a] - self.logical[a] - self.applied_offset[a]
-                 if a in self.homed else 0.0 for a in "XYZB"}
-        self.applied_offset = {a: offset[a] if a in self.homed else self.applied_offset[a]
-                               for a in "XYZB"}
         speed = self.feed_rate / 60.0 if self.feed_rate > 0 else 1e9
         if rapid:
             speed = 1e9
         elif extrude:
             extruder = "D" if "D" in extrude and "E" not in extrude else "E"
             speed *= self.feed_multiplier[extruder]
-        for _ in range(segments):
-            part = {a: delta[a] / segments for a in "XYZB"}
-            part.update({e: mm / segments for e, mm in extrude.items()})
-            yield from self._segment(part, speed)
+        start = dict(self.logical)
+        for n in range(1, segments + 1):
+            for a in "XYZB":
+                self.logical[a] = start[a] + (target[a] - start[a]) * n / segments
+            yield from self._do_move({e: mm / segments for e, mm in extrude.items()}, speed)
         self.logical = target
 
+    def _machine_target(self, axis: str) -> float:
+        """Where the machine should be for the logical target: the firmware's do_move,
+        travel limits and the valve's 0..1 range (flipped for tool 1) included."""
+        dest = self.logical[axis] + self.tool_offset[axis] if axis != "B" else self.logical["B"]
+        if axis in "XY":
+            return max(0.0, min(TRAVEL[axis], dest))
+        if axis == "Z":
+            return min(TRAVEL["Z"], max(0.0, self.logical["Z"]) + self.tool_offset["Z"])
+        opening = max(0.0, min(1.0, dest))
+        return opening if self.tool == 0 else -opening
+
+    def _do_move(self, extrude: dict[str, float], speed: float) -> Iterator[Wait]:
+        moves = {a: self._machine_target(a) - self.position[a] if a in self.homed else 0.0
+                 for a in "XYZB"}
+        moves.update(extrude)
+        yield from self._segment(moves, speed)
+
     def _segment(self, part: dict[str, float], speed: float) -> Iterator[Wait]:
+        """Queue whole steps for `part` (mm); what is left over stays in the position
+        bookkeeping (X/Y/Z/B) or the E/D residue, so it is carried into the next move."""
         steps = {}
         for axis, mm in part.items():
-            exact = mm * self.steps_per_mm(axis) + self.residue[axis]
-            whole = round(exact)
-            self.residue[axis] = exact - whole
+            if axis in "ED":
+                mm += self.e_residue[axis]
+            whole = math.floor(mm * self.steps_per_mm(axis) + 0.5)
             if whole:
                 steps[axis] = whole
         if not steps:
+            for axis in "ED":
+                if axis in part:
+                    self.e_residue[axis] += part[axis]
             return  # shorter than a step: absorbed into the next move
+        for axis, mm in part.items():
+            actual = steps.get(axis, 0) / self.steps_per_mm(axis)
+            if axis in "ED":
+                self.e_residue[axis] = mm + self.e_residue[axis] - actual
+            else:
+                self.position[axis] = float32(self.position[axis] + actual)
         xyz = [steps.get(a, 0) / self.steps_per_mm(a) for a in "XYZ"]
         length = math.sqrt(sum(v * v for v in xyz))
         if length > 0:
@@ -244,6 +267,8 @@ class Position:
         """G28 with the axes named (G28 alone homes nothing): each runs towards its switch
         until it closes. Mechanics in detail belong to the machine model."""
         motion = self.fw.motion
+        for axis in "XYZ":
+            self.tool_offset[axis] = self._eeprom_offset(self.tool, axis)
         yield from wait_for(motion.idle, Wait(motion=True))
         for axis in "XYZ":
             if not line.has(axis):
@@ -252,16 +277,14 @@ class Position:
             distance = max(0, hw_axis.position) / self.steps_per_mm(axis)
             motion.add(Block({}, distance, HOMING_SPEED[axis], homing=axis))
             yield from wait_for(motion.idle, Wait(motion=True))
-            self.logical[axis] = 0.0
-            self.residue[axis] = 0.0
-            self.applied_offset[axis] = 0.0
+            self.position[axis] = 0.0
+            self.logical[axis] = float32(-self.tool_offset[axis])
             self.homed.add(axis)
 
     def _go(self, target: dict[str, float]) -> Iterator[Wait]:
         """A rapid move of the homed axes to `target` (logical coordinates)."""
-        delta = {a: target[a] - self.logical[a] if a in self.homed else 0.0 for a in "XYZB"}
         self.logical = dict(target)
-        yield from self._segment(delta, 1e9)
+        yield from self._do_move({}, 1e9)
 
     def move_filament_until_slip(self, line: Line) -> Iterator[Wait]:
         """G36: with no filament at the sensor nothing moves."""

@@ -240,7 +240,8 @@ def test_a_tool_change_applies_the_heads_tool_offsets(wire):
     run_lines(wire, "G92 X0 Y0 Z0", "G1 X10 F3000", "T1", "G1 X10")
     machine_x = wire.printer.hw.machine.axes["X"].position / 133.7
     assert machine_x == pytest.approx(12.5, abs=0.01)
-    assert wire.gcode(b"M114\r").startswith(b"X:10.000000")  # less the tool offset
+    # less the tool offset: 12.5 mm is 1671 whole steps, 12.498130 mm
+    assert wire.gcode(b"M114\r").startswith(b"X:9.998130")
     assert wire.gcode(b"M114\r").endswith(b"T:1\r\nok\r\n")
 
 

@@ -163,8 +163,9 @@ def test_pronterface_mode_lines_and_terminators(wire):
     job = wire.fw.job
     wire.printer.run_until(lambda: not job.execute_buffer and job.current is None
                            and wire.fw.motion.idle(), 10)
+    # positions are the whole steps queued: Y 5 mm is 669 steps of 1/133.7 mm
     assert wire.line(b"M114\n") == \
-        b"X:10.000000 Y:5.000000 Z:0.000000 B:0.000000 T:0\r\nok\r\n"
+        b"X:10.000000 Y:5.003740 Z:0.000000 B:0.000000 T:0\r\nok\r\n"
     assert wire.line(b"M119\n") == \
         b"M119 X:0 Y:0 Z:1 Z+:0 E:0 D:0 B:1 Eindex:1 Dindex:0\r\nok\r\n"
     assert wire.line(b"M999\n") == b"Bdelta:0.000000\r\nok\r\n"
