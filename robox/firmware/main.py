@@ -126,6 +126,7 @@ class Firmware:
         command = self.command
         line_ready = command.line is not None and command.waiting in (None, NEXT_PASS)
         return bool((usb.received and not command.deaf) or usb.arriving or line_ready
+                    or self.heaters.conversion_ready
                     or command.pending_after_reply or self.job.runnable()
                     or self.reset_requested or not all(self.eeproms.quiet(i) for i in range(3)))
 
@@ -147,7 +148,8 @@ class Firmware:
             events.append(motion_event)
         if self.heaters.any_on():
             events.append(now + HEATER_STEP_S)
-        events += [self.hours.next_tick, self.heaters.sample_due, self.eeproms.update_due]
+        events += [self.hours.next_tick, self.eeproms.update_due,
+                   self.heaters.conversion_started + 1.0]
         step = min(events) - now
         if limit is not None:
             step = min(step, limit)
@@ -174,18 +176,18 @@ class Firmware:
                   *, between_lines: bool = True) -> bool:
         """Run passes until `condition()` holds or `timeout` simulated seconds pass.
 
-        With `between_lines` (the default) both are looked at only between passes of the
-        foreground loop itself, never while it is nested inside a waiting line: a host
-        driving the firmware's own code (the recordings in ../shared/conformance) can
-        only get control there, so a Pronterface burst or a reporting line that waits is
-        seen whole. The USB backend looks after every pass instead, as a USB host does."""
+        With `between_lines` (the default) the condition is looked at only between passes
+        of the foreground loop itself, never while it is nested inside a waiting line (the
+        timeout still ends the run anywhere): a host driving the firmware's own code (the
+        recordings in ../shared/conformance) sees output there, so a Pronterface burst or a
+        reporting line that waits is seen whole. The USB backend looks after every pass
+        instead, as a USB host does."""
         end = self.clock.now + timeout
         for _ in range(max_passes):
-            if not between_lines or not self.inside_a_line():
-                if condition():
-                    return True
-                if self.clock.now >= end:
-                    return False
+            if (not between_lines or not self.inside_a_line()) and condition():
+                return True
+            if self.clock.now >= end:
+                return False
             self.run_pass(min(self.next_step(), max(PASS_S, end - self.clock.now)))
         return condition()
 
