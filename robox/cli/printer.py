@@ -139,6 +139,7 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool,
             summary["filament_used_mm"] = {reel: round(before[reel] - after[reel], 1)
                                            for reel in before if reel in after}
             summary["errors"] = error_names(printer.errors())
+            summary["catch_up_resumes"] = printer.catch_up_resumes
     if as_json:
         emit_json(summary)
         return
@@ -149,6 +150,9 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool,
                    + (" (simulated)" if "simulated_print_time_s" in summary else ""))
         for reel, used in summary["filament_used_mm"].items():
             click.echo(f"filament used from {reel}: {used / 1000:.2f} m")
+        if summary["catch_up_resumes"]:
+            click.echo(f"the print caught up with the upload {summary['catch_up_resumes']} "
+                       "time(s) and was resumed")
         click.echo(f"errors: {', '.join(summary['errors']) or 'none'}")
 
 

@@ -145,6 +145,7 @@ class Printer:
         self.known_errors = 0
         self.idle = idle or time.sleep
         self.commands_sent = 0
+        self.catch_up_resumes = 0  # pauses of a job that caught up with its upload, resumed
         self.known_errors = self.errors()
 
     # ------------------------------------------------------------ wire
@@ -288,6 +289,7 @@ class Printer:
         pausing = self.errors() & PAUSE_MASK_CONNECTED
         if not pausing and status.line in catch_up_lines:
             self.resume()
+            self.catch_up_resumes += 1
             return True
         if notice is not None:
             reason = f"errors: {', '.join(error_names(pausing))}" if pausing else \

@@ -1,0 +1,87 @@
+"""A job printed from its own upload pauses when it catches up with the writer and stays
+paused (the real firmware's behaviour): the host resumes that pause, and only that one."""
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from robox.cli import cli
+from robox.host.client import CATCH_UP_CHECK_CHUNKS, catch_up_lines, prepare_job
+from robox.sim.printer import VirtualPrinter
+from tests.firmware.wire import job_text
+from tests.host.test_client import connect
+from tests.sim import serving
+
+
+def fast_job(lines: int) -> bytes:
+    """Lines that run at once (no heating, no motion): the reader soon catches up."""
+    return prepare_job(job_text([f"M106 S{i % 250}" for i in range(lines)]))
+
+
+@pytest.fixture
+def virtual():
+    v = VirtualPrinter()
+    v.settle()
+    return v
+
+
+def test_catch_up_points_are_the_lines_of_whole_chunks():
+    data = b"G90\r" * 300  # 4 bytes a line: 128 lines a chunk
+    assert catch_up_lines(data) == {128, 256}
+    assert catch_up_lines(data, 1) == {128}
+
+
+def test_send_file_resumes_the_pause_of_a_job_that_caught_up(virtual):
+    job = fast_job(2000)
+    printer = connect(virtual)
+    seen = []
+    notices = []
+
+    def progress(done, total):
+        # the upload is slow: the job prints everything stored, then pauses and parks
+        virtual.run_until(lambda: False, 2.0, between_lines=False)
+        seen.append(virtual.firmware.job.state_text()[8:9])
+
+    printer.send_file(job, "fast", progress=progress, notice=notices.append)
+    assert b"2" in seen  # it did catch up, paused and parked
+    assert printer.catch_up_resumes >= 1 and notices == []  # resumed; nothing else paused it
+    fw = virtual.firmware
+    assert virtual.run_until(lambda: not fw.job.running, 600, between_lines=False)
+    assert ("job finished", b"fast".ljust(16, b"\0")) in fw.events
+    assert fw.job.lines_executed >= 2000
+
+
+def test_a_pause_the_user_made_is_left_alone_and_reported(virtual):
+    job = fast_job(3000)
+    printer = connect(virtual)
+    notices = []
+    chunks_done = []
+
+    def progress(done, total):
+        chunks_done.append(done)
+        virtual.run_until(lambda: False, 0.002, between_lines=False)
+        if len(chunks_done) == 3:
+            printer.pause()  # the user's pause, mid-file
+            virtual.run_until(lambda: False, 1.0, between_lines=False)
+
+    printer.send_file(job, "user", progress=progress, notice=notices.append)
+    fw = virtual.firmware
+    line = fw.job.line_number
+    assert line not in catch_up_lines(job)
+    virtual.run_until(lambda: False, 30, between_lines=False)
+    assert fw.job.running and fw.job.paused() and fw.job.line_number == line  # still paused
+    assert notices and "left paused" in notices[0] and "by the user or the job" in notices[0]
+    assert len(chunks_done) > CATCH_UP_CHECK_CHUNKS
+
+
+def test_send_job_wait_over_a_pty_prints_a_job_that_catches_up(tmp_path):
+    path = tmp_path / "fast.gcode"
+    path.write_bytes(job_text([f"M106 S{i % 250}" for i in range(3000)]))
+    with serving.served(tmp_path / "printer") as pty:
+        result = CliRunner().invoke(cli, ["--device", f"serial:{pty}", "send-job", str(path),
+                                          "--wait", "--json"], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.output)
+    assert summary["lines"] == 3000 and summary["errors"] == []
+    assert summary["catch_up_resumes"] >= 1  # it did catch up, and was resumed
