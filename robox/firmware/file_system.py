@@ -475,16 +475,17 @@ class FileSystem:
 
     # ------------------------------------------------------------- reading
     def _find(self, file_id: bytes) -> int | None:
+        """The printer's search, newest first: a file whose 16 id bytes equal `file_id`
+        (the upload under way too, unless the id is empty), or, for an empty id, the
+        last job. An empty id therefore opens a newer file stored with an empty id."""
         d = self._dir
-        if file_id[0] == 0:  # the last job, among committed files only
-            last = d.last_job
-            if last != NO_JOB and d.in_ring(last) and d.slots[last].job:
-                return last
-            return None
-        if self._writing and d.slots[d.next_file].id == file_id:
-            return d.next_file
-        for index in reversed(d.ring()):
-            if d.slots[index].id == file_id:
+        empty = file_id[0] == 0
+        candidates = list(reversed(d.ring()))
+        if not empty and self._writing:
+            candidates.insert(0, d.next_file)
+        for index in candidates:
+            slot = d.slots[index]
+            if slot.id == file_id or (empty and index == d.last_job and slot.job):
                 return index
         return None
 

@@ -118,3 +118,14 @@ def test_formatting_an_absent_reel_eeprom_does_not_stick(printer):
     assert robox(printer, b"\xfa") == ACK_CLEAN
     status = robox(printer, b"\xb0")
     assert status[134:138] == b"2200"
+
+
+def test_run_last_job_opens_a_newer_file_stored_with_an_empty_id(printer):
+    # files seed 49, steps 140-147: a file stored with an empty id matches the empty id of
+    # "run the last job", so it is opened for reading and the next upload keeps it
+    assert robox(printer, b"\x90" + bytes(16)) == b"\xe3" + b"0" * 64
+    assert robox(printer, b"\x92" + b"00000000" + b"0007" + b"G4 S10\n") == b"\xe3" + b"0" * 64
+    assert robox(printer, b"\x94" + bytes(16)) == b"\xe3" + b"0" * 64  # runs, still reading
+    assert robox(printer, b"\x90F00" + bytes(13)) == b"\xe3" + b"0" * 64
+    assert robox(printer, b"\x92" + b"00000000" + b"0004" + b"M107") == b"\xe3" + b"0" * 64
+    assert robox(printer, b"\x96") == b"\xe002" + bytes(16) + b"F00" + bytes(13)
