@@ -21,11 +21,12 @@ import time
 import tty
 
 from robox.firmware.command import HOST_CONNECTED_S
+from robox.firmware.main import PASS_S
 from robox.sim.printer import VirtualPrinter
 
 READ_SIZE = 4096
 FAST_SLICE_S = 1.0
-HOST_QUIET_S = 1.0
+HOST_QUIET_S = 2.0
 
 
 class PtyServer:
@@ -98,7 +99,7 @@ class PtyServer:
                 fw.clock.now + FAST_SLICE_S, turn)
             while passes < 2000 and (self._work_pending() or passes == 0) and \
                     fw.clock.now < until:
-                self.printer.run_pass()
+                self.printer.run_pass(min(fw.next_step(), max(PASS_S, until - fw.clock.now)))
                 passes += 1
                 if self.printer.usb.reply_waiting:
                     break
