@@ -43,11 +43,22 @@ def float32(value: float) -> float:
         return math.copysign(math.inf, value)
 
 
-def strtod(text: bytes) -> tuple[float, int]:
-    """C's strtod: the value and the number of bytes consumed (0: no number)."""
+def report_float(value: float) -> bytes:
+    """The first 8 characters of C's printf("%f") of a float, NUL padded: the numbers of
+    the status report."""
+    return f"{float32(value):f}"[:8].encode().ljust(8, b"\0")
+
+
+def _skip_space(text: bytes) -> int:
     i = 0
     while i < len(text) and text[i] in _SPACE:
         i += 1
+    return i
+
+
+def strtod(text: bytes) -> tuple[float, int]:
+    """C's strtod: the value and the number of bytes consumed (0: no number)."""
+    i = _skip_space(text)
     match = _HEX.match(text, i)
     if match:
         sign, digits, exponent = match.groups()
@@ -68,29 +79,20 @@ def strtod(text: bytes) -> tuple[float, int]:
     return 0.0, 0
 
 
+def _leading_integer(text: bytes) -> int:
+    match = _INT.match(text, _skip_space(text))
+    return int(match.group()) if match else 0
+
+
 def strtol(text: bytes) -> int:
     """C's strtol(text, NULL, 10), saturating at the limits of a 64-bit long."""
-    i = 0
-    while i < len(text) and text[i] in _SPACE:
-        i += 1
-    match = _INT.match(text, i)
-    if not match:
-        return 0
-    return max(LONG_MIN, min(LONG_MAX, int(match.group())))
+    return max(LONG_MIN, min(LONG_MAX, _leading_integer(text)))
 
 
 def strtoul(text: bytes) -> int:
     """C's strtoul(text, NULL, 10): a negative number wraps, overflow saturates."""
-    i = 0
-    while i < len(text) and text[i] in _SPACE:
-        i += 1
-    match = _INT.match(text, i)
-    if not match:
-        return 0
-    value = int(match.group())
-    if abs(value) > ULONG_MAX:
-        return ULONG_MAX
-    return value & ULONG_MAX
+    value = _leading_integer(text)
+    return ULONG_MAX if abs(value) > ULONG_MAX else value & ULONG_MAX
 
 
 def strtof(text: bytes) -> float:

@@ -68,10 +68,6 @@ def get_hex(field: bytes) -> int:
     return (-value if negative else value) & 0xFFFFFFFFFFFFFFFF
 
 
-def hex_value(field: bytes) -> int:
-    return get_hex(field)
-
-
 def put_hex(value: int, digits: int) -> bytes:
     return f"{value & ((1 << 4 * digits) - 1):0{digits}x}".encode()
 

@@ -16,7 +16,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
-from robox.firmware.cline import Line, float32, strtof
+from robox.firmware.cline import Line, report_float, strtof
 from robox.firmware.gcode import Wait
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
@@ -463,9 +463,9 @@ class Heaters:
         out = bytearray()
         for c in (self.nozzle[0], self.nozzle[1], self.bed):
             out += b"%d" % c.mode
-            out += _f8(c.measured) + _f8(c.target[0]) + _f8(c.target[1])
+            out += report_float(c.measured) + report_float(c.target[0]) + report_float(c.target[1])
         out += b"%d" % self.ambient.mode
-        out += _f8(self.ambient.measured) + _f8(self.ambient.target[0])
+        out += report_float(self.ambient.measured) + report_float(self.ambient.target[0])
         out += b"1" if self.head_fan_requested > 0 else b"0"
         out += b"%d" % self.why_are_we_waiting
         return bytes(out)
@@ -485,7 +485,3 @@ def _read(plant) -> float:
 def _c_int(value: float) -> int:
     return int(value) if math.isfinite(value) else 0
 
-
-def _f8(value: float) -> bytes:
-    """The first 8 characters of printf("%f") of a float, NUL padded."""
-    return f"{float32(value):f}"[:8].encode().ljust(8, b"\0")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 
-from robox.firmware.cline import Line, float32, strtof
+from robox.firmware.cline import Line, float32, report_float, strtof
 from robox.firmware.gcode import Wait, wait_for
 from robox.firmware.motion import Block
 from robox.formats.eeprom import EepromIndex
@@ -130,14 +130,14 @@ class Position:
         """Status bytes 139..171: X, Y, Z, B as float8 (NUL padded), then the tool."""
         x, y, z = (self.reported_position(a) for a in "XYZ")
         b = self.reported_position("B") * (-1 if self.tool == 1 else 1)
-        return b"".join(_f8(v) for v in (x, y, z, b)) + b"%d" % self.tool
+        return b"".join(report_float(v) for v in (x, y, z, b)) + b"%d" % self.tool
 
     def filament_report(self) -> bytes:
         """Status bytes 172..219: E and D diameters and multipliers, then the D and E
         feed-rate multipliers."""
         (ed, em), (dd, dm) = self.filament["E"], self.filament["D"]
         values = (ed, em, dd, dm, self.feed_multiplier["D"], self.feed_multiplier["E"])
-        return b"".join(_f8(v) for v in values)
+        return b"".join(report_float(v) for v in values)
 
     def set_filament_info(self, extruder: str, raw: bytes) -> None:
         """0xc8/0xc9: diameter (at least 0.1) and multiplier (at least 0)."""
@@ -354,7 +354,3 @@ class Position:
         yield from self._go(target)
         yield from self._go(dict(saved))
 
-
-def _f8(value: float) -> bytes:
-    """The first 8 characters of printf("%f") of a float, NUL padded."""
-    return f"{float32(value):f}"[:8].encode().ljust(8, b"\0")
