@@ -34,4 +34,5 @@ def serve_cmd(state_dir: str | None, realtime: bool, speed: float | None) -> Non
         raise UsageError("--speed must be positive")
     pace = 1.0 if realtime else speed
     directory = Path(state_dir) if state_dir else default_state_dir()
-    serve_forever(directory, pace, lambda path: click.echo(path))
+    serve_forever(directory, pace, lambda path: click.echo(path),
+                  lambda message: click.echo(message, err=True))

@@ -30,8 +30,11 @@ HOST_QUIET_S = 2.0
 
 
 class PtyServer:
-    def __init__(self, printer: VirtualPrinter, speed: float | None = None):
+    def __init__(self, printer: VirtualPrinter, speed: float | None = None,
+                 console=None):
         self.printer = printer
+        self.console = console  # where the printer's own notices go (sim serve: stderr)
+        self._events_seen = 0
         self.speed = speed
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
@@ -110,6 +113,18 @@ class PtyServer:
                 if self.printer.usb.reply_waiting:
                     self._pump_output()
         self._pump_output()
+        self._tell_console()
+
+    def _tell_console(self) -> None:
+        """Say what a person at the printer should know (a deaf receiver, say)."""
+        fw = self.printer.firmware
+        events = fw.events
+        if fw.events is not getattr(self, "_events_list", None):  # a reset starts afresh
+            self._events_list, self._events_seen = events, 0
+        for kind, detail in events[self._events_seen :]:
+            if kind == "deaf" and self.console is not None:
+                self.console(f"robox sim: {detail}")
+        self._events_seen = len(events)
 
     def serve(self) -> None:
         self._sim_start = self.printer.firmware.clock.now
@@ -122,10 +137,10 @@ class PtyServer:
         os.close(self.slave)
 
 
-def serve_forever(state_dir, speed: float | None, announce) -> None:
+def serve_forever(state_dir, speed: float | None, announce, console=None) -> None:
     """Serve until SIGINT or SIGTERM, then leave every state file consistent."""
     printer = VirtualPrinter(state_dir)
-    server = PtyServer(printer, speed)
+    server = PtyServer(printer, speed, console)
     previous = {sig: signal.signal(sig, server.stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         announce(server.path)

@@ -121,3 +121,18 @@ def test_robox_cli_sim_serve_on_a_pty_for_a_pronterface_host(tmp_path):
     assert run_cli("sdcard", "fsck", str(state / "sdcard.img")).exit_code == 0
     assert run_cli("eeprom", "fsck", str(state / "reel0.eeprom")).exit_code == 0
     assert os.path.getsize(state / "flash.bin") == 131072
+
+
+def test_sim_serve_says_on_its_console_when_the_printer_goes_deaf():
+    from robox.sim.serve import PtyServer
+
+    messages = []
+    server = PtyServer(VirtualPrinter(), None, console=messages.append)
+    try:
+        server.printer.usb.host_write(b"M115" + b" " * 1020)  # 1024 bytes, no line end
+        for _ in range(30):
+            server.serve_once(timeout=0)
+        assert server.printer.firmware.command.deaf
+        assert len(messages) == 1 and "no more input until reset" in messages[0]
+    finally:
+        server.close()
