@@ -167,7 +167,6 @@ class Command:
 
         n = line_length(self.buffer)
         if n:
-            self.fw.activity()
             self._run_line(bytes(self.buffer[:n]), self._send_text)
         return n
 
@@ -193,7 +192,6 @@ class Command:
         if len(buf) < 1 + length:
             return 0
         params = bytes(buf[1 : 1 + length])
-        self.fw.activity()
         self._dispatch(code, params)
         return 1 + length
 

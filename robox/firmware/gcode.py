@@ -111,10 +111,6 @@ class Job:
     def job_id(self) -> bytes | None:
         return self.fw.file_system.reading
 
-    def activity(self) -> None:
-        """Kept for callers that note host activity; the firmware's idle timer only
-        restarts on lines, runs and pause/resume."""
-
     # ------------------------------------------------------- host side
     def execute_gcode(self, data: bytes) -> None:
         """Queue G-code text; dropped whole (GCODE_BUFFER_OVERRUN) if it would not fit."""
@@ -176,16 +172,15 @@ class Job:
         """True when the next pass has something to do at once (the clock must not jump)."""
         if self.current is not None:
             return self.waiting is None or self.waiting == NEXT_PASS
-        if self.abort_flag or line_length(self.execute_buffer):
+        if self.abort_flag:
+            return self.fw.motion.idle()  # the abort ends once motion has stopped
+        if line_length(self.execute_buffer):
             return True
         if not self.running:
             return False
         if self.pause:
             return not self.parked
-        return True if self.parked else not self._caught_up()
-
-    def _caught_up(self) -> bool:
-        return False
+        return True  # a line to run, a block to read, or unparking to do
 
     # ------------------------------------------------------------- loop
     def maintain_job(self) -> None:

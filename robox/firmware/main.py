@@ -109,9 +109,6 @@ class Firmware:
         self.power_up()
 
     # ---------------------------------------------------------------- loop
-    def activity(self) -> None:
-        self.job.activity()
-
     def do_everything_else(self) -> None:
         for obj in self._maintained:
             obj.maintain()
