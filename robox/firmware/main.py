@@ -164,24 +164,24 @@ class Firmware:
         if self.reset_requested:
             self._reset()
 
-    def inside_a_line(self) -> bool:
-        """True while the printer is inside a line that waits (a job line, or one a host
-        sent): on the printer the foreground loop is then nested in that call."""
-        return self.job.current is not None or self.command.line is not None
+    def inside_commands(self) -> bool:
+        """True while the command object runs a line that waits (a Pronterface line, a
+        reporting 0x95): on the printer the loop is then nested inside maintain_commands."""
+        return self.command.line is not None
 
     def run_until(self, condition, timeout: float = 3600.0, max_passes: int = 50_000_000,
                   *, between_lines: bool = True) -> bool:
         """Run passes until `condition()` holds or `timeout` simulated seconds pass.
 
-        With `between_lines` (the default) the condition is looked at only between passes
-        of the foreground loop itself, never while it is nested inside a waiting line (the
-        timeout still ends the run anywhere): a host driving the firmware's own code (the
-        recordings in ../shared/conformance) sees output there, so a Pronterface burst or a
-        reporting line that waits is seen whole. The USB backend looks after every pass
-        instead, as a USB host does."""
+        With `between_lines` (the default) the condition is not looked at while the command
+        object runs a line that waits (the timeout still ends the run anywhere): the host
+        that recorded the real firmware's sessions (../shared/conformance) saw output only
+        outside maintain_commands, so it saw a Pronterface burst whole, while a job line
+        that waits did not hide a reply. The USB backend looks after every pass, as a USB
+        host does."""
         end = self.clock.now + timeout
         for _ in range(max_passes):
-            if (not between_lines or not self.inside_a_line()) and condition():
+            if (not between_lines or not self.inside_commands()) and condition():
                 return True
             if self.clock.now >= end:
                 return False
