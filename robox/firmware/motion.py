@@ -17,6 +17,9 @@ from collections import deque
 from dataclasses import dataclass, field
 
 QUEUE_LENGTH = 16
+# The model's own acceleration for its trapezoids (the firmware's integer ramp, driven by
+# M201 S, is the machine model's work).
+ACCEL_MM_S2 = 1500.0
 
 
 @dataclass
@@ -60,7 +63,7 @@ class Motion:
 
     @property
     def accel(self) -> float:
-        return self.fw.parameters.values["M201"]["A"]
+        return ACCEL_MM_S2
 
     def room(self) -> bool:
         return len(self.queue) + (self.running is not None) < QUEUE_LENGTH

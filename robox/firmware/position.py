@@ -85,7 +85,7 @@ class Position:
 
     # --------------------------------------------------------- reporting
     def steps_per_mm(self, axis: str) -> float:
-        return self.fw.parameters.values["M92"][axis]
+        return self.fw.parameters.values["steps_per_unit"][axis]
 
     def reported_position(self, axis: str) -> float:
         """Where the head will be once queued moves are done, less the tool offset."""
@@ -242,7 +242,7 @@ class Position:
                     self.e_residue[axis] += part[axis]
             return  # shorter than a step: absorbed into the next move
         for axis, mm in part.items():
-            actual = steps.get(axis, 0) / self.steps_per_mm(axis)
+            actual = float32(steps.get(axis, 0) / self.steps_per_mm(axis))
             if axis in "ED":
                 self.e_residue[axis] = mm + self.e_residue[axis] - actual
             else:
@@ -254,7 +254,7 @@ class Position:
         else:
             length = max(abs(steps.get(a, 0)) / self.steps_per_mm(a) for a in "EDB")
             direction = (0.0, 0.0, 0.0)
-        limits = self.fw.parameters.values["M202"]
+        limits = self.fw.parameters.values["max_speed"]
         for axis, count in steps.items():
             axis_mm = abs(count) / self.steps_per_mm(axis)
             if axis_mm > 0 and length > 0:

@@ -3,6 +3,8 @@ resynchronisation, the error flags and the one-reply-in-flight rule."""
 
 import re
 
+import pytest
+
 from robox.formats.protocol import ErrorBit
 from tests.firmware.wire import float8, hexn, ident
 
@@ -163,9 +165,12 @@ def test_pronterface_mode_lines_and_terminators(wire):
     job = wire.fw.job
     wire.printer.run_until(lambda: not job.execute_buffer and job.current is None
                            and wire.fw.motion.idle(), 10)
-    # positions are the whole steps queued: Y 5 mm is 669 steps of 1/133.7 mm
-    assert wire.line(b"M114\n") == \
-        b"X:10.000000 Y:5.003740 Z:0.000000 B:0.000000 T:0\r\nok\r\n"
+    # positions are where the whole steps queued end: within a step (1/133.7 mm) of 10, 5
+    m114 = wire.line(b"M114\n")
+    x, y = (float(word[2:]) for word in m114.split(b" ")[:2])
+    assert x == pytest.approx(10.0, abs=1 / 133.7) and y == pytest.approx(5.0, abs=1 / 133.7)
+    assert round(x * 133.7, 3).is_integer() and round(y * 133.7, 3).is_integer()
+    assert m114.endswith(b" Z:0.000000 B:0.000000 T:0\r\nok\r\n")
     assert wire.line(b"M119\n") == \
         b"M119 X:0 Y:0 Z:1 Z+:0 E:0 D:0 B:1 Eindex:1 Dindex:0\r\nok\r\n"
     assert wire.line(b"M999\n") == b"Bdelta:0.000000\r\nok\r\n"
@@ -191,7 +196,15 @@ def test_gcode_over_0x95_reporting_and_queued(wire):
     assert two == b"FIRMWARE_NAME: robox r776sim\r\nok\r\n"
     assert not wire.fw.job.execute_buffer
     m503 = wire.gcode(b"M503\n")
-    assert m503.startswith(b"Ver: ") and b"M92 X133.70" in m503 and m503.endswith(b"ok\r\n")
+    assert m503.startswith(b"Ver: ") and m503.endswith(b"ok\r\n")
+    # show_parameters' own text: the factory settings, printed as C prints floats
+    assert b"uSteps / Unit:\r\n  M92 X133.699997 Y133.699997 Z6400.000000 E747.000000 " \
+        b"D747.000000 B2500.000000\r\n" in m503
+    assert b"Nozzle:\r\n  M301 P8.000000e-02 I1.200000e-02 D5.500000e-01 B4380.000000 " \
+        b"T19193.000000 U0\r\n" in m503
+    assert b"Motor I (A):\r\n  M906 X1.093750 Y1.093750 Z0.937500 E1.328125 D1.328125 " \
+        b"B10.078125\r\n" in m503
+    assert m503.endswith(b"Filament slip thr (mm):\r\n  M909 S10.000000 T4.000000\r\nok\r\n")
 
 
 def test_execute_buffer_overrun_drops_the_command(wire):
