@@ -20,6 +20,8 @@ import math
 import re
 import struct
 
+from robox.formats import float8
+
 LONG_MAX = (1 << 63) - 1
 LONG_MIN = -(1 << 63)
 ULONG_MAX = (1 << 64) - 1
@@ -44,9 +46,8 @@ def float32(value: float) -> float:
 
 
 def report_float(value: float) -> bytes:
-    """The first 8 characters of C's printf("%f") of a float, NUL padded: the numbers of
-    the status report."""
-    return f"{float32(value):f}"[:8].encode().ljust(8, b"\0")
+    """A float as the status report carries it: float8, NUL padded."""
+    return float8.encode(float32(value), b"\0")
 
 
 def _skip_space(text: bytes) -> int:

@@ -45,6 +45,15 @@ TIMEOUT_S = 0.2
 UPDATE_PERIOD_S = 7.2
 QUIET_STEP_S = 0.01
 
+#: What a head type has: the old type names that have it, and in the "RX" naming scheme
+#: the character position whose digit, masked, must equal a value.
+HEAD_FEATURES = {
+    "dual_material": ({b"RBX01-DM"}, 7, 3, 2),
+    "two_fans": ({b"RBXDV-S3"}, 7, 4, 4),
+    "b_axis": ({b"RBX01-SM", b"RBX01-S2", b"RBX01-DM"}, 6, 1, 1),
+    "prtd": ({b"RBXDV-S2"}, 6, 4, 4),
+}
+
 ERROR_BIT = {
     EepromIndex.HEAD: ErrorBit.HEAD_EEPROM,
     EepromIndex.REEL0: ErrorBit.REEL0_EEPROM,
@@ -273,8 +282,7 @@ class Eeproms:
         state = self.states[index]
         if state.status != Status.VALID or address > DATA_SIZE - 8:
             return
-        text = (f"{value:f}" + " " * 8)[:8].encode("ascii")
-        state.buffer[address : address + 8] = text
+        state.buffer[address : address + 8] = float8.encode(value)
         state.buffer[DATA_SIZE:BANK_SIZE] = struct.pack("<I", eeprom_crc(state.data))
         state.counter = 0
         state.writing = False
@@ -284,47 +292,26 @@ class Eeproms:
         state = self.states[EepromIndex.HEAD]
         return bytes(state.buffer[:8]) if state.status == Status.VALID else None
 
-    def _head_digit(self, at: int) -> int | None:
+    def _head_has(self, feature: str) -> bool:
         name = self._head_type()
-        if name is None or name[:2] != b"RX":
-            return None
-        return (name[at] - 0x30) & 0xFF
+        if name is None:
+            return False
+        old_names, at, mask, value = HEAD_FEATURES[feature]
+        if name in old_names:
+            return True
+        return name[:2] == b"RX" and ((name[at] - 0x30) & 0xFF) & mask == value
 
     def head_dual_material(self) -> bool:
-        name = self._head_type()
-        if name is None:
-            return False
-        if name == b"RBX01-DM":
-            return True
-        digit = self._head_digit(7)
-        return digit is not None and digit & 3 == 2
+        return self._head_has("dual_material")
 
     def head_has_two_fans(self) -> bool:
-        name = self._head_type()
-        if name is None:
-            return False
-        if name == b"RBXDV-S3":
-            return True
-        digit = self._head_digit(7)
-        return digit is not None and digit & 4 != 0
+        return self._head_has("two_fans")
 
     def head_has_b_axis(self) -> bool:
-        name = self._head_type()
-        if name is None:
-            return False
-        if name in (b"RBX01-SM", b"RBX01-S2", b"RBX01-DM"):
-            return True
-        digit = self._head_digit(6)
-        return digit is not None and digit & 1 != 0
+        return self._head_has("b_axis")
 
     def head_has_prtd(self) -> bool:
-        name = self._head_type()
-        if name is None:
-            return False
-        if name == b"RBXDV-S2":
-            return True
-        digit = self._head_digit(6)
-        return digit is not None and digit & 4 == 4
+        return self._head_has("prtd")
 
     def head_max_temperature(self) -> float:
         name = self._head_type()

@@ -242,7 +242,6 @@ class Heaters:
             c.mode = 0
         self.head_fan_requested = 0
 
-    all_off = turn_off
 
     def head_hot_now(self) -> bool:
         return max(self.nozzle[0].measured, self.nozzle[1].measured) > HEAD_HOT_TEMPERATURE

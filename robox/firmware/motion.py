@@ -85,10 +85,6 @@ class Motion:
     def motors_off(self) -> None:
         """M84: the drivers are disabled; positions are kept (the model has no step loss)."""
 
-    def stop(self) -> None:
-        """Abort: finish the move under way, drop the rest (their steps never happen)."""
-        self.queue.clear()
-
     @staticmethod
     def _junction(a: Block, b: Block) -> float:
         (ax, ay, az), (bx, by, bz) = a.direction, b.direction

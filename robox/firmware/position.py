@@ -64,7 +64,6 @@ class Position:
             self.feed_multiplier[extruder] = eeproms.float_at(index, 0x60,
                                                               self.feed_multiplier[extruder])
 
-    reload_reels = filament_info_from_reel
 
     def update_reel_filament_length(self) -> None:
         """Every 7.2 s: whole millimetres queued since the last time come off each reel's
