@@ -136,7 +136,7 @@ def main() -> None:
     print(f"  simulated print time {simulated / 3600:.2f} h; simulated / wall = "
           f"{simulated / wall:,.0f}x")
     print(f"  finished: {('job finished', ident('bench')) in fw.events}; "
-          f"filament used {fw.position.total_mm['E'] / 1000:.2f} m; faults {len(fw.faults)}")
+          f"filament used {fw.position.extruded_mm[0] / 1000:.2f} m; faults {len(fw.faults)}")
 
 
 if __name__ == "__main__":

@@ -319,9 +319,9 @@ class Command:
         out = bytearray(b"\xe1")
         out += fw.file_system.reading or bytes(ID_SIZE)
         out += fw.job.state_text()
-        out += fw.position.switch_flags()
+        out += fw.motion.switch_states()
         out += b"0" if machine.button_pressed else b"1"  # the raw pin: high when released
-        out += fw.position.index_and_z_top_flags()
+        out += fw.motion.index_and_z_top()
         out += b"1" if fw.position.extruder_present("E") else b"0"
         out += b"1" if fw.position.extruder_present("D") else b"0"
         out += fw.heaters.report_block()

@@ -31,6 +31,7 @@ BUFFER_SIZE = 1024
 LINE_LIMIT = BUFFER_SIZE // 2
 IDLE_PAUSE_S = 600.0
 IDLE_ABORT_S = 3600.0
+SLIP_COUNT_DECAY_S = 300.0
 REPORTING = {105, 111, 112, 113, 114, 115, 119, 503, 997, 999}
 
 
@@ -96,6 +97,8 @@ class Job:
         self.waiting: Wait | None = None
         self.lines_executed = 0
         self.jobs_completed = 0
+        self.slip_count = [0, 0]
+        self.slip_count_since = now
 
     # ------------------------------------------------------------ queries
     def aborting(self) -> bool:
@@ -164,9 +167,12 @@ class Job:
             state = b"2" if self.parked else b"1"
         else:
             state = b"4" if self.parked else b"1"
-        idle = not self.execute_buffer and self.fw.motion.idle() and \
-            (self.pause or not self.running)
-        return b"%08x" % (self.line_number & 0xFFFFFFFF) + state + (b"0" if idle else b"1")
+        busy = self.fw.position.busy_state()
+        if busy is None:
+            idle = not self.execute_buffer and self.fw.motion.empty() and \
+                (self.pause or not self.running)
+            busy = b"0" if idle else b"1"
+        return b"%08x" % (self.line_number & 0xFFFFFFFF) + state + busy
 
     def runnable(self) -> bool:
         """True when the next pass has something to do at once (the clock must not jump)."""
@@ -187,10 +193,16 @@ class Job:
         if self.current is not None:
             self._drive()
             return
-        self._the_boss()
+        slipped = self._the_boss()
+        step = self._slip_handling(slipped) if slipped is not None else self._action()
+        if step is not None:
+            self._start(step)
+
+    def _action(self) -> Iterator[Wait] | None:
+        """The one thing maintain_job does this pass; a generator when it may wait."""
         fw = self.fw
         if self.abort_flag:
-            if fw.motion.idle():
+            if fw.motion.empty():
                 fw.heaters.turn_off()
                 was = self.running
                 self.abort_flag = False
@@ -202,25 +214,24 @@ class Job:
                 fw.position.filament_info_from_reel()
                 if was:
                     fw.events.append(("job aborted", None))
-            return
+            return None
         n = line_length(self.execute_buffer)
         if n:
-            self._start(self._buffer_line(self.execute_buffer, n))
-        elif not self.running:
-            return
-        elif self.pause:
-            if not self.parked:
-                self._start(self._park())
-        elif self.parked:
-            self._start(self._unpark())
-        elif (n := line_length(self.job_buffer)) > 0:
+            return self._buffer_line(self.execute_buffer, n)
+        if not self.running:
+            return None
+        if self.pause:
+            return None if self.parked else self._park()
+        if self.parked:
+            return self._unpark()
+        if (n := line_length(self.job_buffer)) > 0:
             self.line_number += 1
-            self._start(self._buffer_line(self.job_buffer, n))
-        elif len(self.job_buffer) >= LINE_LIMIT:
+            return self._buffer_line(self.job_buffer, n)
+        if len(self.job_buffer) >= LINE_LIMIT:
             fw.errors.set(ErrorBit.GCODE_LINE_TOO_LONG)
             self.abort()
         elif fw.file_system.eof():
-            if fw.motion.idle():
+            if fw.motion.empty():
                 self._finish()
         else:
             data = fw.file_system.read()
@@ -228,9 +239,31 @@ class Job:
                 self.pause = 1  # caught up with the upload: stays paused until resumed
             else:
                 self.job_buffer += data
+        return None
 
-    def _the_boss(self) -> None:
-        now = self.fw.clock.now
+    def _the_boss(self) -> int | None:
+        """Automatic pauses and aborts; returns the extruder whose filament slipped (while
+        printing, not paused) when that needs the slip handling, which waits."""
+        fw = self.fw
+        now = fw.clock.now
+        motion = fw.motion
+        slipped = None
+        if not self.running:
+            self.slip_count = [0, 0]
+            self.slip_count_since = now
+        else:
+            if now - self.slip_count_since >= SLIP_COUNT_DECAY_S:
+                self.slip_count = [max(0, c - 1) for c in self.slip_count]
+                self.slip_count_since = now
+            for i in (0, 1):
+                if slipped is None and motion.is_filament_slip_error(i) and not self.pause:
+                    slipped = i
+                    break
+        if slipped is None:
+            self._auto_pause(now)
+        return slipped
+
+    def _auto_pause(self, now: float) -> None:
         if self.running and self.fw.command.is_error():
             self.pause = 1
         if self.running and now - self.idle_since >= IDLE_PAUSE_S:
@@ -238,6 +271,51 @@ class Job:
         elif now - self.idle_since >= IDLE_ABORT_S:
             self.abort()  # even with no job: it turns the heaters off
             self.idle_since = now
+
+    def _slip_handling(self, i: int) -> Iterator[Wait]:
+        """A filament slip while printing: the fourth within the decay time is an error;
+        before that, park and try backing the filament off and pushing it back; if the
+        wheel does not turn, the filament has run out: pause, and unload it."""
+        fw = self.fw
+        self.slip_count[i] += 1
+        if self.slip_count[i] >= 4:
+            fw.errors.set(ErrorBit.D_FILAMENT_SLIP if i else ErrorBit.E_FILAMENT_SLIP)
+        else:
+            yield from fw.position.park()
+            retried = yield from fw.position.filament_slip_retry(i)
+            if retried:
+                yield from fw.position.unpark(reselect_tool=True)
+            else:
+                self.slip_count[i] = 0
+                self.pause = 1
+                self.parked = True
+                fw.errors.set(ErrorBit.D_NO_FILAMENT if i else ErrorBit.E_NO_FILAMENT)
+                self.execute_gcode(b"M121 D\n" if i else b"M121 E\n")
+        fw.motion.is_filament_slip_error(i)
+        for j in (0, 1):  # the rest of the boss's round, then this pass's action
+            if j > i and fw.motion.is_filament_slip_error(j) and not self.pause:
+                yield from self._slip_handling(j)
+                return
+        self._auto_pause(fw.clock.now)
+        step = self._action()
+        if step is not None:
+            yield from step
+
+    def pause_and_park(self) -> Iterator[Wait]:
+        """Before an unload: a running job is paused and parked."""
+        if self.running:
+            self.pause = 1
+            if not self.parked:
+                yield from self.fw.position.park()
+                self.parked = True
+
+    def delay_aborting(self, seconds: float) -> Iterator[Wait]:
+        """Wait `seconds` (whole milliseconds of the tick counter), ending early on abort."""
+        if seconds <= 0:
+            return
+        end = self.fw.clock.now + int(seconds * 1000) / 1000.0
+        while not self.abort_flag and self.fw.clock.now < end:
+            yield Wait(until=end)
 
     def _finish(self) -> None:
         fw = self.fw
@@ -272,13 +350,10 @@ class Job:
 
     def _park(self) -> Iterator[Wait]:
         yield from self.fw.position.park()
-        self.fw.heaters.pause()
         self.parked = True
 
     def _unpark(self) -> Iterator[Wait]:
-        yield from self.fw.heaters.resume()
-        if not self.abort_flag:
-            yield from self.fw.position.unpark()
+        yield from self.fw.position.unpark()
         self.parked = False
 
     # -------------------------------------------------------- execution
@@ -302,17 +377,11 @@ class Job:
         if code in (0, 1):
             yield from pos.move(line, rapid=code == 0)
         elif code == 4:
-            yield from wait_for(motion.idle, Wait(motion=True))
+            yield from motion.wait_until_empty()
             if line.has("S"):
-                seconds = line.float("S")
+                yield from self.delay_aborting(line.float("S"))
             elif line.has("P"):
-                seconds = line.float("P") / 1000.0
-            else:
-                seconds = 0.0
-            end = self.fw.clock.now + int(seconds * 1000) / 1000.0 if seconds > 0 else None
-            if end is not None:
-                yield from wait_for(lambda: self.abort_flag or self.fw.clock.now >= end,
-                                    Wait(until=end))
+                yield from self.delay_aborting(line.float("P") / 1000.0)
         elif code == 28:
             yield from pos.home(line)
         elif code == 36:
@@ -338,7 +407,7 @@ class Job:
             if self.running:
                 self.pause = 2 if line.has("C") else 1
         elif code == 84:
-            yield from wait_for(fw.motion.idle, Wait(motion=True))
+            yield from fw.motion.wait_until_empty()
             fw.motion.motors_off()
         elif code == 103:
             heaters.set_nozzle_temperature(line, 1)
@@ -359,9 +428,11 @@ class Job:
         elif code == 115:
             return f"FIRMWARE_NAME: robox {fw.revision}\r\n".encode()
         elif code == 119:
-            return pos.m119_text()
-        elif code in (120, 121, 122):
-            yield from pos.filament_load_unload(code, line)
+            return fw.motion.m119_text()
+        elif code == 120:
+            yield from pos.load_filament(line)
+        elif code in (121, 122):
+            yield from pos.unload_filament(line, pause=code == 121)
         elif code in (126, 127):
             heaters.set_head_power(code == 127)
         elif code == 128:
@@ -383,8 +454,10 @@ class Job:
             heaters.set_ambient_temperature(line)
         elif code == 190:
             yield from heaters.wait_for_bed(line)
+        elif code == 201:
+            fw.motion.set_acceleration(line)
         elif code == 400:
-            yield from wait_for(fw.motion.idle, Wait(motion=True))
+            yield from fw.motion.wait_until_empty()
         elif code == 503:
             return fw.parameters.m503_text()
         elif code in (500, 501, 502):

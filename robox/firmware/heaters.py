@@ -114,6 +114,8 @@ class Heaters:
         self.head_fan_requested = 0
         self.head_fan_duty = 0
         self.bed_got_to = -FLT_MAX
+        self.nozzle_forcing = False  # the B-axis work-around, enabled once B misbehaves
+        self.nozzles_forced_off = False
         self.set_head_power(True)
 
     def controllers(self) -> tuple[Controller, ...]:
@@ -230,6 +232,8 @@ class Heaters:
                 duty = 0.0
             if c is self.nozzle[1] and self._eeproms.head_has_two_fans():
                 duty = 0.0
+            if on_head and self.nozzles_forced_off:
+                duty = 0.0
             plants[c.plant].duty = duty
         self.fw.hw.machine.head_fan = self.head_fan_duty / 255.0
 
@@ -249,6 +253,49 @@ class Heaters:
     def head_hot(self) -> bool:
         """For head hours: a nozzle at or above 60 C at the last sample."""
         return max(self.nozzle[0].measured, self.nozzle[1].measured) >= HEAD_HOT_TEMPERATURE
+
+    # ------------------------------------------------- B-axis work-around
+    def force_nozzles_off(self, force: bool) -> None:
+        """While the valve moves, the nozzle heaters are held off, once the work-around
+        has been enabled (after a lost B position)."""
+        self.nozzles_forced_off = force and self.nozzle_forcing
+        if self.nozzles_forced_off:
+            for name in ("nozzle0", "nozzle1"):
+                self.fw.hw.machine.heaters[name].duty = 0.0
+
+    def enable_nozzle_forcing(self) -> None:
+        self.nozzle_forcing = True
+
+    def heat_for_filament_unload(self, nozzle0: bool, nozzle1: bool) -> Iterator[Wait]:
+        """Before an unload: each nozzle named to the unload temperature (the head fan
+        helping one that must cool), held there 5 s; then off, the fan as it was."""
+        fan = self.head_fan_requested
+        self.head_fan_requested = 0
+        wanted = [nozzle0, nozzle1]
+        for i, want in enumerate(wanted):
+            if want:
+                self.nozzle[i].mode = 3
+                if self.nozzle[i].measured > UNLOAD_NOZZLE_TEMPERATURE:
+                    self.head_fan_requested = 255
+        self.why_are_we_waiting = NOZZLE_AT_TEMPERATURE
+        job = self.fw.job
+        while True:
+            yield Wait(heater="nozzle0" if nozzle0 else "nozzle1")
+            now = self.fw.clock.now
+            done = True
+            for i, want in enumerate(wanted):
+                c = self.nozzle[i]
+                if want and c.mode:
+                    near = abs(UNLOAD_NOZZLE_TEMPERATURE - c.measured) / \
+                        UNLOAD_NOZZLE_TEMPERATURE < NOZZLE_TEMP_MARGIN
+                    done = done and near and now - c.unload_since >= UNLOAD_NOZZLE_DWELL_S
+            if done or job.abort_flag or not self.head_power_on():
+                break
+        for i, want in enumerate(wanted):
+            if want:
+                self.nozzle[i].mode = 0
+        self.head_fan_requested = fan
+        self.why_are_we_waiting = NOT_WAITING
 
     # ---------------------------------------------------------- head power
     def head_power_on(self) -> bool:

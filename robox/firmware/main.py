@@ -158,6 +158,7 @@ class Firmware:
         dt = self.next_step() if step is None else step
         self.clock.advance(dt)
         self.hw.machine.advance(dt)
+        self.motion.catch_up()
         self.do_everything_else()
         self.maintain_job()
         self.hw.usb.frame()

@@ -1,133 +1,649 @@
-"""Motion: a queue of 16 blocks executed in simulated time with trapezoidal profiles.
+"""Motion: the block queue, look-ahead and the step interrupt, as motion.c does them.
 
-Simple for now: each block knows its steps per axis, its length in mm and its
-cruise speed. When a block starts, the exit speeds of the queued blocks are
-computed backwards from the last one (which ends at rest): each is the lower
-of the junction speed with its successor (the lower cruise speed, scaled by
-the change of direction) and what the deceleration distance allows. The
-block's duration follows from its entry speed (the previous block's exit).
-Blocks start at the `maintain()` after they are queued, so everything a line
-queued in one pass is looked ahead to.
+A move becomes a block: its length (steps of the longest axis, one step
+interrupt each), a cruise speed, an end speed and per-axis increments in
+16.16 fixed point (the longest axis 1.0). Speeds are in the firmware's units
+(SPEED_UNITS steps/s); the interrupt's timer runs at 3 MHz and its period is
+(0x10000 << 12) / speed_x4k ticks. Each interrupt steps the axes whose
+accumulators carry, ramps speed_x4k by min(period, max_period_for_ramping) *
+acceleration, caps it by the block's speed and by what the remaining length
+allows (isqrt(2 * length * acceleration + end_speed^2 / 16) << 14), and counts
+the block's length down, by one each time unless a switch is being watched
+and has not yet tripped (homing, nozzle selection, filament loading) or the
+distance to give up at has not run out. When a block is queued the end
+speeds of all queued blocks are recomputed backwards from it; the queue is
+kept just long enough to stop from the last block's speed plus 0.1 s.
+
+The interrupt is modelled exactly, in simulated time: `catch_up()` runs every
+interrupt due by the clock, before each loop pass. Runs of interrupts whose
+speed cannot change and during which no input the interrupt reads can change
+(the cruise of a block, a homing approach at its steady speed, an idle timer)
+are done in one go, with the same integer arithmetic, so the result is the
+same as doing them one by one.
+
+The foreground routines that wait on motion (queueing a block, homing, nozzle
+selection, filament load and unload) are generators: they yield while the
+firmware would spin `do_everything_else()`.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Iterator
 
-QUEUE_LENGTH = 16
-# The model's own acceleration for its trapezoids (the firmware's integer ramp, driven by
-# M201 S, is the machine model's work).
-ACCEL_MM_S2 = 1500.0
+from robox.firmware.cline import float32
+from robox.firmware.gcode import Wait, wait_for
+from robox.formats.protocol import ErrorBit
+from robox.hardware.machine import AXES, B, D, E, X, Y, Z
+
+BUFFER_SIZE = 16
+MASK = BUFFER_SIZE - 1
+MIN_SPEED = 2
+MAX_SPEED = 1200
+BOARD_MCK = 96_000_000
+TICKS_PER_S = BOARD_MCK // 32
+SPEED_UNITS = BOARD_MCK / (65536.0 * 32.0)  # steps/s per speed unit
+MARGIN_UNITS = int(32.0 * SPEED_UNITS * 0.1)  # the queue's 0.1 s margin
+IDLE_PERIOD = 0x10000 // MIN_SPEED
+FLT_MAX = 3.4028234663852886e38
+FILAMENT_AUTOLOAD_THRESHOLD = 8
+FILAMENT_HOLDOFF_S = 4.0
+Z_SAFE_RAISE = 3.0
+Z_SAFE_LOWER = -20.0
+Z_TOP_DEGLITCH = 10
+U32 = 0xFFFFFFFF
+
+NORMAL, LOADING, UNLOADING, UNTIL_SLIP = range(4)
+MOTION_WAIT = Wait(motion=True)
 
 
-@dataclass
 class Block:
-    steps: dict[str, int]
-    length: float  # mm along the path (XYZ, or the longest other axis)
-    speed: float  # cruise, mm/s
-    direction: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    start: float = 0.0
-    end: float = 0.0
-    exit_speed: float = 0.0
-    homing: str | None = None  # axis homed by this block
-    extra: dict = field(default_factory=dict)
+    __slots__ = ("check_z_top", "end_speed", "inc", "length", "movers", "speed")
+
+    def __init__(self) -> None:
+        self.length = 0
+        self.speed = MIN_SPEED
+        self.end_speed = 0
+        self.inc = [0] * 6
+        self.check_z_top = False
+        self.movers: tuple[int, ...] = ()
 
 
-def trapezoid_time(length: float, entry: float, cruise: float, exit_: float,
-                   accel: float) -> float:
-    """Seconds to cover `length` from `entry` to `exit_` speed, cruising at most `cruise`."""
-    if length <= 0:
-        return 0.0
-    cruise = max(cruise, 1e-6)
-    entry, exit_ = min(entry, cruise), min(exit_, cruise)
-    up = (cruise**2 - entry**2) / (2 * accel)
-    down = (cruise**2 - exit_**2) / (2 * accel)
-    if up + down <= length:
-        return (cruise - entry) / accel + (cruise - exit_) / accel + (length - up - down) / cruise
-    # no cruise phase: peak speed where acceleration and deceleration meet
-    peak = math.sqrt(max(0.0, accel * length + (entry**2 + exit_**2) / 2))
-    peak = max(peak, entry, exit_)
-    return max(0.0, (peak - entry) / accel) + max(0.0, (peak - exit_) / accel)
+def _max_speed_step(acceleration: int, allowable_error: int) -> int:
+    v = 262144.0 * math.sqrt(2.0 * float32(acceleration) * float32(allowable_error))
+    return int(max(1.0, min(4294967296.0, v)))
 
 
 class Motion:
     def __init__(self, firmware):
         self.fw = firmware
 
+    # ------------------------------------------------------------ set-up
     def initialise(self) -> None:
-        self.queue: deque[Block] = deque()
-        self.running: Block | None = None
-        self.moved_seconds = 0.0
-
-    @property
-    def accel(self) -> float:
-        return ACCEL_MM_S2
-
-    def room(self) -> bool:
-        return len(self.queue) + (self.running is not None) < QUEUE_LENGTH
-
-    def idle(self) -> bool:
-        return self.running is None and not self.queue
-
-    def next_event(self) -> float | None:
-        if self.running is not None:
-            return self.running.end
-        if self.queue:
-            return self.fw.clock.now
-        return None
-
-    def add(self, block: Block) -> None:
-        """Queue a block (the caller has waited for room); it starts at the next maintain."""
-        self.queue.append(block)
-
-    def motors_off(self) -> None:
-        """M84: the drivers are disabled; positions are kept (the model has no step loss)."""
+        fw = self.fw
+        self.machine = fw.hw.machine
+        self.pa = fw.parameters.values
+        self.set_acceleration(None)
+        self.speed_x4k = MIN_SPEED << 12
+        self.timer_period = IDLE_PERIOD
+        self.switch_select = 0
+        self.slip_select = False
+        self.switch_abandon_counter = 0
+        self.switch_invert = 0
+        self.filament_slip = False
+        self.what = NORMAL
+        self.buffer_in = 0
+        self.buffer_out = 0
+        self.block = [Block() for _ in range(BUFFER_SIZE)]
+        self.acc = [0] * 6
+        self.active = False
+        self.last_index = [0, 0]  # the interrupt's own copy; starts unknown (0)
+        self.next_tick = self._tick(fw.clock.now) + IDLE_PERIOD
+        self.autoload_counter = [self.machine.index_wheel(E), self.machine.index_wheel(D)]
+        self.slip_error = [False, False]
+        self.index_moved = [False, False]
+        self.holdoff_since = fw.clock.now
+        self.z_top_counter = 0
+        self.interrupts = 0
 
     @staticmethod
-    def _junction(a: Block, b: Block) -> float:
-        (ax, ay, az), (bx, by, bz) = a.direction, b.direction
-        cos = ax * bx + ay * by + az * bz
-        return min(a.speed, b.speed) * cos if cos > 0 else 0.0
+    def _tick(seconds: float) -> int:
+        return int(seconds * TICKS_PER_S + 0.5)
 
-    def _start_next(self) -> None:
-        if not self.queue:
-            self.running = None
-            return
-        entry = self.running.exit_speed if self.running is not None else 0.0
-        exit_speed = 0.0  # the last queued block ends at rest
-        blocks = list(self.queue)
-        twice_accel = 2 * self.accel
-        junction = self._junction
-        for later, earlier in zip(reversed(blocks[1:]), reversed(blocks[:-1]), strict=True):
-            reachable = math.sqrt(exit_speed * exit_speed + twice_accel * later.length)
-            exit_speed = min(junction(earlier, later), reachable)
-        block = self.queue.popleft()
-        block.exit_speed = exit_speed
-        start = max(self.fw.clock.now, self.running.end if self.running else 0.0)
-        duration = trapezoid_time(block.length, entry, block.speed, exit_speed, self.accel)
-        block.start, block.end = start, start + duration
-        self.moved_seconds += duration
-        self.running = block
+    def set_acceleration(self, line) -> None:
+        """M201 (and power-up): S acceleration, T allowable error (1..255); the ramp's
+        period limit and the junction speed step are worked out again only here."""
+        pa = self.pa
+        if line is not None:
+            if line.has("S"):
+                pa["acceleration"] = max(1, min(255, line.uint("S")))
+            if line.has("T"):
+                pa["allowable_error"] = max(1, min(255, line.uint("T")))
+        a = pa["acceleration"]
+        self.max_period_for_ramping = (0x10000 // math.isqrt(a << 3)) & 0xFFFF
+        self.max_speed_step = _max_speed_step(a, pa["allowable_error"])
 
+    # ----------------------------------------------------------- queries
+    def empty(self) -> bool:
+        return self.buffer_out == self.buffer_in
+
+    idle = empty
+
+    def queued(self) -> int:
+        return (self.buffer_in - self.buffer_out) & MASK
+
+    def ready_for_more(self) -> bool:
+        n = self.queued()
+        if n >= BUFFER_SIZE - 1:
+            return False
+        if n == 0:
+            return True
+        b = self.buffer_out
+        length = 0
+        for _ in range(n):
+            length += self.block[b].length
+            b = (b + 1) & MASK
+        speed = self.block[(self.buffer_in - 1) & MASK].speed
+        v = (speed // self.pa["acceleration"] + MARGIN_UNITS) * speed
+        return length < ((v & U32) >> 5)
+
+    def next_event(self) -> float | None:
+        """While motion is under way the loop spins pass by pass, as the firmware's does."""
+        if self.empty() and not self.machine.hand_busy():
+            return None
+        return self.fw.clock.now
+
+    def aborting(self) -> bool:
+        return self.fw.job.abort_flag
+
+    # ------------------------------------------------------------ inputs
+    def switch_actuated(self, axis: int) -> bool:
+        return self.machine.switch_pin(axis) != self.pa["invert_switch"][AXES[axis]]
+
+    def z_top_actuated(self) -> bool:
+        return self.z_top_counter >= Z_TOP_DEGLITCH
+
+    def selected_nozzle(self) -> int:
+        return int(not self.switch_actuated(B))
+
+    def switch_states(self) -> bytes:
+        """Status bytes 27..33 (axis switches, lid) and 35..37 (index wheels, Z-top)."""
+        m = self.machine
+        flags = [self.switch_actuated(i) for i in range(6)] + [m.lid_pin()]
+        return bytes(0x31 if f else 0x30 for f in flags)
+
+    def index_and_z_top(self) -> bytes:
+        m = self.machine
+        return bytes(0x31 if f else 0x30
+                     for f in (m.index_wheel(E), m.index_wheel(D), self.z_top_actuated()))
+
+    def m119_text(self) -> bytes:
+        s = [int(self.switch_actuated(i)) for i in range(6)]
+        m = self.machine
+        return (f"M119 X:{s[0]} Y:{s[1]} Z:{s[2]} Z+:{int(self.z_top_actuated())} "
+                f"E:{s[3]} D:{s[4]} B:{s[5]} Eindex:{m.index_wheel(E)} "
+                f"Dindex:{m.index_wheel(D)}\r\n").encode()
+
+    # --------------------------------------------------------- foreground
     def maintain(self) -> None:
-        if self.running is None and self.queue:
-            self._start_next()
-        while self.running is not None and self.running.end <= self.fw.clock.now:
-            self._complete(self.running)
-            previous = self.running
-            if self.queue:
-                self._start_next()
-                if self.running is previous:  # pragma: no cover
-                    break
-            else:
-                self.running = None
+        self._monitor_index_wheels()
+        self._monitor_z_top_switch()
+        self._manage_motor_currents()
 
-    def _complete(self, block: Block) -> None:
-        axes = self.fw.hw.machine.axes
-        if block.homing is not None:
-            axes[block.homing].position = 0
-        for name, steps in block.steps.items():
-            axes[name].position += steps
-        self.fw.position.completed(block)
+    def _monitor_index_wheels(self) -> None:
+        pa = self.pa
+        m = self.machine
+        now = self.fw.clock.now
+        for i, axis in ((0, E), (1, D)):
+            if m.switch_pin(axis) == pa["invert_switch"][AXES[axis]]:  # no filament
+                if now - self.holdoff_since < FILAMENT_HOLDOFF_S or not self.empty():
+                    self.autoload_counter[i] = 0
+                elif m.index_wheel(axis) != (self.autoload_counter[i] & 1):
+                    self.autoload_counter[i] += 1
+                if self.autoload_counter[i] >= FILAMENT_AUTOLOAD_THRESHOLD:
+                    self.fw.job.execute_gcode(b"M120 D\n" if i else b"M120 E\n")
+                    self.autoload_counter[i] = 0
+                self.acc[axis] &= 0xFFFF
+                continue
+            self.autoload_counter[i] = 0
+            until_slip = self.what == UNTIL_SLIP
+            threshold_mm = pa["filament_until_slip_threshold" if until_slip
+                              else "filament_slip_threshold"]
+            temp = float32(float32(float32(pa["steps_per_unit"][AXES[axis]] * threshold_mm)
+                                   * self.fw.position.filament_multiplier(i)) * 65536.0)
+            threshold = int(temp) if temp < 2147483648.0 else 0x7FFFFFFF
+            if until_slip and self.filament_slip:
+                self.acc[axis] &= 0xFFFF
+                continue
+            count = self.acc[axis]
+            count = count - (1 << 32) if count & 0x80000000 else count
+            if abs(count) > threshold:
+                self.acc[axis] &= 0xFFFF
+                self.filament_slip = True
+                if self.what == LOADING:
+                    self.fw.errors.set(ErrorBit.D_LOAD_SLIP if i else ErrorBit.E_LOAD_SLIP)
+                elif self.what == UNLOADING:
+                    self.fw.errors.set(ErrorBit.D_UNLOAD_SLIP if i else ErrorBit.E_UNLOAD_SLIP)
+                elif self.what == NORMAL:
+                    self.slip_error[i] = True
+
+    def _monitor_z_top_switch(self) -> None:
+        if self.machine.z_top_pin():
+            self.z_top_counter = 0
+        else:
+            self.z_top_counter = min(0xFF, self.z_top_counter + 1)
+        if not self.empty() and self.block[self.buffer_out].check_z_top and \
+                self.z_top_actuated():
+            self.fw.errors.set(ErrorBit.Z_TOP_SWITCH)
+
+    def _manage_motor_currents(self) -> None:
+        if self.empty() or not any(self.block[n].inc[B] for n in self._queued_indices()):
+            self.fw.heaters.force_nozzles_off(False)
+
+    def _queued_indices(self):
+        n = self.buffer_out
+        while n != self.buffer_in:
+            yield n
+            n = (n + 1) & MASK
+
+    def motors_off(self) -> None:
+        """M84: every driver disabled (positions are kept; nothing pushes the axes)."""
+        self.machine.motors_on = False
+
+    def is_filament_slip_error(self, i: int) -> bool:
+        r = self.slip_error[i]
+        self.slip_error[i] = False
+        return r
+
+    def has_index_wheel_moved(self, i: int) -> bool:
+        r = self.index_moved[i]
+        self.index_moved[i] = False
+        return r
+
+    # ------------------------------------------------------ queueing moves
+    def add_block(self, feed_rate: float, speed_limit: float, check_z_top: bool,
+                  moves: list[float]) -> Iterator[Wait]:
+        """add_block_to_buffer: queue `moves` (mm per axis, float32) and wait until the
+        queue is ready for more; `moves` is rewritten with the distances the steps make
+        (all 0 when the move is shorter than a step: it is absorbed into the next)."""
+        pa = self.pa
+        spu = [pa["steps_per_unit"][a] for a in AXES]
+        steps = [0] * 6
+        length = 0
+        for i in range(5):
+            steps[i] = math.floor(float32(moves[i] * spu[i]) + 0.5)
+            length = max(length, abs(steps[i]))
+        if self.fw.heaters.nozzle_forcing:
+            steps[B] = 64 * math.floor(float32(moves[B] * spu[B]) / 64.0 + 0.5)
+        else:
+            steps[B] = math.floor(float32(moves[B] * spu[B]) + 0.5)
+        length = max(length, abs(steps[B]))
+        if length < 1:
+            for i in range(6):
+                moves[i] = 0.0
+            return
+        blk = self.block[self.buffer_in]
+        blk.length = length
+        blk.end_speed = 0
+        blk.check_z_top = check_z_top
+        if feed_rate > 0.0:
+            max_speed = [pa["max_speed"][a] for a in AXES]
+            min_duration = 0.0
+            for i in range(6):
+                min_duration = float32(max(min_duration, abs(moves[i]) / max_speed[i]))
+            v = 0.0
+            for i in range(3):
+                v = float32(v + float32(moves[i] * moves[i]))
+            v = float32(math.sqrt(v))
+            min_duration = max(min_duration, float32(v / feed_rate))
+            for i in range(3, 6):
+                min_duration = float32(max(min_duration, abs(moves[i]) / speed_limit))
+            if min_duration > 0.0:
+                speed = min(float32(MAX_SPEED), float32(length) / (SPEED_UNITS * min_duration))
+            else:
+                speed = float(MAX_SPEED)
+            blk.speed = max(MIN_SPEED, int(speed) & 0xFFFF)
+        else:
+            blk.speed = MIN_SPEED
+        movers = []
+        for i in range(6):
+            inc = math.floor(65536.0 * float32(steps[i]) / float32(length))
+            blk.inc[i] = inc
+            product = float32(float32(inc) * float32(length))
+            moves[i] = float32(math.floor((product + 32768.0) / 65536.0) / spu[i])
+            if inc:
+                movers.append(i)
+                self._make_motor_active(i)
+        blk.movers = tuple(movers)
+        if blk.inc[B]:
+            self.fw.heaters.force_nozzles_off(True)
+        n = self.queued()
+        b = self.buffer_in
+        self.buffer_in = (self.buffer_in + 1) & MASK
+        while n > 0:
+            prev = (b - 1) & MASK
+            self.block[prev].end_speed = self._end_speed(self.block[prev], self.block[b])
+            b = prev
+            n -= 1
+        yield from wait_for(self.ready_for_more, MOTION_WAIT)
+
+    def _make_motor_active(self, axis: int) -> None:
+        self.machine.motors_on = True
+        if axis == B:
+            self.fw.heaters.set_head_power(True)
+
+    def _end_speed(self, this: Block, nxt: Block) -> int:
+        a = self.pa["acceleration"]
+        v = (min(0x00800000, nxt.length) << 1) * a
+        v += (nxt.end_speed * nxt.end_speed) >> 4
+        end_speed = min(nxt.speed, math.isqrt(v & U32) << 2)
+        worst = max(abs(p - q) for p, q in zip(this.inc, nxt.inc, strict=True))
+        if worst > 0:
+            end_speed = min(end_speed, self.max_speed_step // worst)
+        return max(MIN_SPEED, min(MAX_SPEED, end_speed))
+
+    def wait_until_empty(self) -> Iterator[Wait]:
+        yield from wait_for(self.empty, MOTION_WAIT)
+
+    # ------------------------------------------------------- the interrupt
+    def catch_up(self) -> None:
+        """Run every step interrupt due by now."""
+        limit = self._tick(self.fw.clock.now)
+        if self.next_tick > limit:
+            return
+        m = self.machine
+        pa = self.pa
+        while self.next_tick <= limit:
+            if not self.active:
+                if self.buffer_in != self.buffer_out:
+                    if self.block[self.buffer_out].length:
+                        self.active = True
+                        for i in range(6):
+                            self.acc[i] = (self.acc[i] & 0xFFFF0000) | 0x8000
+                    else:  # never queued by the firmware; skipped as it would be
+                        self.buffer_out = (self.buffer_out + 1) & MASK
+                if not self.active:  # idle: every interrupt until `limit` is the same
+                    self.speed_x4k = MIN_SPEED << 12
+                    self._check_index_wheels()
+                    self.timer_period = IDLE_PERIOD
+                    n = (limit - self.next_tick) // IDLE_PERIOD + 1
+                    self.next_tick += n * IDLE_PERIOD
+                    self.interrupts += n
+                    continue
+            blk = self.block[self.buffer_out]
+            k = self._run_length(blk, limit, m, pa)
+            if k > 1:
+                self._batch(blk, k, m)
+            else:
+                self._interrupt(blk, m, pa)
+
+    def _check_index_wheels(self) -> None:
+        m = self.machine
+        for i, axis in ((0, E), (1, D)):
+            if m.index_wheel(axis) != self.last_index[i]:
+                self.last_index[i] ^= 1
+                self.acc[axis] &= 0xFFFF
+                self.index_moved[i] = True
+
+    def _counts(self) -> bool:
+        """check_switches(): whether this interrupt counts the block's length down."""
+        if self.fw.job.abort_flag or self.switch_abandon_counter == 0:
+            return True
+        self.switch_abandon_counter -= 1
+        if self.slip_select and self.filament_slip:
+            return True
+        return self.machine.switch_pin(self.switch_select) != self.switch_invert
+
+    def _interrupt(self, blk: Block, m, pa) -> None:
+        self._check_index_wheels()
+        acc = self.acc
+        inc = blk.inc
+        for i in blk.movers:
+            v = acc[i]
+            acc[i] = (v + inc[i]) & U32
+            if (v ^ acc[i]) & 0xFFFF0000:
+                m.step(i, 1 if inc[i] > 0 else -1)
+        a = pa["acceleration"]
+        v = math.isqrt(((min(0x00800000, blk.length - 1) << 1) * a
+                        + ((blk.end_speed * blk.end_speed) >> 4)) & U32)
+        s = self.speed_x4k + min(self.timer_period, self.max_period_for_ramping) * a
+        s = min(v << 14, s, blk.speed << 12)
+        self.speed_x4k = max(MIN_SPEED << 12, s)
+        if self._counts():
+            blk.length -= 1
+        if blk.length == 0:
+            self.buffer_out = (self.buffer_out + 1) & MASK
+            self.active = False
+        self.timer_period = ((0x10000 << 12) // self.speed_x4k) & 0xFFFF
+        self.next_tick += self.timer_period
+        self.interrupts += 1
+
+    def _run_length(self, blk: Block, limit: int, m, pa) -> int:
+        """How many interrupts from now can be done at once (0 or 1: one at a time)."""
+        s = self.speed_x4k
+        a = pa["acceleration"]
+        c = (blk.end_speed * blk.end_speed) >> 4
+        counting = (self.fw.job.abort_flag or self.switch_abandon_counter == 0
+                    or (self.slip_select and self.filament_slip))
+        watching = not counting
+        if watching:
+            counting = m.switch_pin(self.switch_select) != self.switch_invert
+        length = blk.length
+        if length <= 1:
+            return 1
+        # the speed must stay exactly where it is for every interrupt of the run
+        def cap(rem: int) -> int:
+            v = math.isqrt(((min(0x00800000, rem) << 1) * a + c) & U32)
+            return min(v << 14, blk.speed << 12)
+        first = max(MIN_SPEED << 12, cap(length - 1))
+        if first != s:
+            return 1
+        if counting:
+            if s == MIN_SPEED << 12:
+                k = length - 1
+            else:
+                need = -(-s // 16384)  # v must stay at least this
+                rem_min = max(0, -(-(need * need - c) // (2 * a)))
+                k = min(length - 1, length - rem_min)
+        else:
+            k = 1 << 40  # the length is not counted down: the speed cannot change
+        if k < 2:
+            return 1
+        if watching:
+            k = min(k, self.switch_abandon_counter)
+        period = self.timer_period
+        k = min(k, (limit - self.next_tick) // period + 1)
+        biggest = max(abs(blk.inc[i]) for i in blk.movers)
+        quiet = m.quiet_steps(self.switch_select if watching else None)
+        if quiet < (1 << 59):
+            k = min(k, ((quiet - 1) * 65536 - 65535) // biggest)
+        return k
+
+    def _batch(self, blk: Block, k: int, m) -> None:
+        """`k` interrupts at a constant speed, no input changing, the block not ending."""
+        self._check_index_wheels()
+        acc = self.acc
+        for i in blk.movers:
+            total = (acc[i] & 0xFFFF) + k * blk.inc[i]
+            acc[i] = (acc[i] + k * blk.inc[i]) & U32
+            m.step(i, total >> 16)
+        if self.fw.job.abort_flag or self.switch_abandon_counter == 0:
+            blk.length -= k
+        else:
+            self.switch_abandon_counter -= k
+            if (self.slip_select and self.filament_slip) or \
+                    m.switch_pin(self.switch_select) != self.switch_invert:
+                blk.length -= k
+        self.next_tick += k * self.timer_period
+        self.interrupts += k
+
+    # ------------------------------------------------- switch-bound moves
+    def _single(self, axis: int, distance: float) -> list[float]:
+        moves = [0.0] * 6
+        moves[axis] = float32(distance)
+        return moves
+
+    def home_axis(self, axis: int, home_distance: float, abandon: float) -> Iterator[Wait]:
+        """Back off if the switch is already actuated, then run towards it until it trips
+        plus the home distance (giving up after `abandon` mm). Returns the distance."""
+        pa = self.pa
+        spu = pa["steps_per_unit"][AXES[axis]]
+        moved = 0.0
+        yield from self.wait_until_empty()
+        if self.aborting():
+            return moved
+        self.switch_select = axis
+        self.slip_select = False
+        self.switch_invert = pa["invert_switch"][AXES[axis]]
+        if self.machine.switch_pin(axis) != self.switch_invert:
+            moves = self._single(axis, float32(-1.5 * home_distance))
+            moved = float32(moved + moves[axis])
+            yield from self.add_block(FLT_MAX, FLT_MAX, False, moves)
+            yield from self.wait_until_empty()
+        if self.aborting():
+            return moved
+        moves = self._single(axis, home_distance)
+        self.switch_abandon_counter = int(float32(float32(abandon) * spu))
+        yield from self.add_block(FLT_MAX, FLT_MAX, False, moves)
+        yield from self.wait_until_empty()
+        v = float32(abandon - float32(float32(self.switch_abandon_counter) / spu))
+        moved = float32(moved + (v if home_distance >= 0.0 else -v))
+        self.switch_abandon_counter = 0
+        return moved
+
+    def make_z_safe(self) -> Iterator[Wait]:
+        yield from self.wait_until_empty()
+        moves = self._single(Z, Z_SAFE_LOWER if self.z_top_actuated() else Z_SAFE_RAISE)
+        yield from self.add_block(FLT_MAX, FLT_MAX, False, moves)
+        yield from self.wait_until_empty()
+
+    def rotate_gantry(self, distance: float) -> Iterator[Wait]:
+        yield from self.wait_until_empty()
+        moves = self._single(Z, float32(0.5 * distance))
+        self.machine.gantry_rotation = True
+        yield from self.add_block(FLT_MAX, FLT_MAX, False, moves)
+        yield from self.wait_until_empty()
+        self.machine.gantry_rotation = False
+
+    def select_nozzle(self, distance: float, abandon: float) -> Iterator[Wait]:
+        """Move the valve to the side of its switch `distance` asks for (+: nozzle 0),
+        backing off first when already there; up to three retries at half speed each,
+        then B_POSITION_LOST / B_STUCK. Returns the distance to the switch."""
+        pa = self.pa
+        spu = pa["steps_per_unit"]["B"]
+        invert = pa["invert_switch"]["B"]
+        moved = 0.0
+        measured = False
+        yield from self.wait_until_empty()
+        if self.aborting():
+            return moved
+        self.switch_select = B
+        self.slip_select = False
+        tries = 4
+        speed = pa["max_speed"]["B"]
+        negative = distance < 0.0
+        for back_off in (True, False):
+            factor = -0.25 if back_off else 1.0
+            while tries > 0 and ((self.machine.switch_pin(B) == invert) == negative) == back_off:
+                self.switch_abandon_counter = int(float32(float32(abandon) * spu))
+                moves = self._single(B, float32(factor * distance))
+                self.switch_invert = int((negative == bool(invert)) if back_off
+                                         else (negative != bool(invert)))
+                yield from self.add_block(FLT_MAX, speed, False, moves)
+                yield from self.wait_until_empty()
+                if not measured:
+                    moved = float32(abandon - float32(float32(self.switch_abandon_counter)
+                                                      / spu))
+                    moved = float32(moved - abs(moves[B]))
+                    measured = True
+                self.switch_abandon_counter = 0
+                if ((self.machine.switch_pin(B) == invert) == negative) == back_off:
+                    tries -= 1
+                    speed = float32(speed * 0.5)
+                    if tries <= 1:
+                        self.fw.heaters.enable_nozzle_forcing()
+                        self.fw.errors.set(ErrorBit.B_POSITION_LOST)
+                if self.aborting():
+                    return moved
+        if tries == 0:
+            self.fw.errors.set(ErrorBit.B_STUCK)
+        return moved
+
+    def grab_filament(self, axis: int, overtravel: float, abandon: float) -> Iterator[Wait]:
+        pa = self.pa
+        spu = pa["steps_per_unit"][AXES[axis]]
+        yield from self.wait_until_empty()
+        if self.aborting():
+            return False
+        self.what = LOADING
+        self.switch_select = axis
+        self.filament_slip = False
+        self.slip_select = False
+        self.switch_invert = pa["invert_switch"][AXES[axis]]
+        if self.machine.switch_pin(axis) == self.switch_invert:
+            self.switch_abandon_counter = int(float32(float32(abandon) * spu))
+            yield from self.add_block(FLT_MAX, FLT_MAX, False, self._single(axis, overtravel))
+            yield from self.wait_until_empty()
+        self.switch_abandon_counter = 0
+        self.what = NORMAL
+        return self.switch_actuated(axis)
+
+    def load_filament(self, axis: int, overtravel: float, distance: float) -> Iterator[Wait]:
+        pa = self.pa
+        spu = pa["steps_per_unit"][AXES[axis]]
+        yield from self.wait_until_empty()
+        if self.aborting():
+            return False
+        self.what = LOADING
+        self.switch_select = axis
+        self.switch_invert = int(not pa["invert_switch"][AXES[axis]])
+        self.filament_slip = False
+        self.slip_select = True
+        self.switch_abandon_counter = int((distance - 2.0 * overtravel) * spu)
+        yield from self.add_block(FLT_MAX, FLT_MAX, False, self._single(axis, overtravel))
+        yield from self.wait_until_empty()
+        self.switch_abandon_counter = 0
+        self.what = NORMAL
+        return not self.filament_slip and self.switch_actuated(axis)
+
+    def unload_filament(self, axis: int, overtravel: float, abandon: float) -> Iterator[Wait]:
+        pa = self.pa
+        spu = pa["steps_per_unit"][AXES[axis]]
+        yield from self.wait_until_empty()
+        if self.aborting():
+            return
+        self.what = UNLOADING
+        self.filament_slip = False
+        self.slip_select = True
+        self.switch_select = axis
+        self.switch_invert = int(not pa["invert_switch"][AXES[axis]])
+        self.switch_abandon_counter = int(float32(float32(abandon) * spu))
+        yield from self.add_block(FLT_MAX, FLT_MAX, False, self._single(axis, -overtravel))
+        yield from self.wait_until_empty()
+        self.switch_abandon_counter = 0
+        self.holdoff_since = self.fw.clock.now
+        self.what = NORMAL
+
+    def move_filament_until_slip(self, axis: int, overtravel: float, abandon: float,
+                                 speed_limit: float) -> Iterator[Wait]:
+        pa = self.pa
+        spu = pa["steps_per_unit"][AXES[axis]]
+        yield from self.wait_until_empty()
+        if self.aborting() or self.machine.switch_pin(axis) == pa["invert_switch"][AXES[axis]]:
+            return 0.0
+        self.what = UNTIL_SLIP
+        self.filament_slip = False
+        self.slip_select = True
+        self.switch_select = axis
+        self.switch_invert = int(not pa["invert_switch"][AXES[axis]])
+        self.switch_abandon_counter = int(float32(float32(abandon) * spu))
+        yield from self.add_block(FLT_MAX, speed_limit, False, self._single(axis, overtravel))
+        yield from self.wait_until_empty()
+        moved = float32(abandon - float32(float32(self.switch_abandon_counter) / spu))
+        moved = moved if overtravel >= 0.0 else -moved
+        self.switch_abandon_counter = 0
+        self.what = NORMAL
+        return moved
+
+
+__all__ = ["FLT_MAX", "SPEED_UNITS", "B", "Block", "D", "E", "Motion", "X", "Y", "Z"]

@@ -1,11 +1,19 @@
-"""Position: coordinates, modes, volumetric extrusion, conversion to whole steps.
+"""Position: where moves go, in the firmware's float arithmetic (position.c).
 
-X/Y/Z/B are absolute (G90) or relative (G91); E and D are always relative and
-in cubic millimetres of plastic, turned into filament length with the reel's
-diameter and multiplier. Moves are split into segments of at most 2 mm of XYZ
-travel; each is converted to whole microsteps per axis, the rounding residue
-carried into the next, so thousands of tiny moves never drift. Every 7.2 s the
-whole millimetres of filament used are taken off the reel's remaining length.
+The firmware keeps, per axis, a destination (where the host asked for,
+relative to the tool) and a position (where the machine will be once the
+queued moves are done, float32, the rounding residue of each block carried
+into the next). X/Y/Z are absolute (G90) or relative (G91); E and D are
+always relative and in cubic millimetres, turned into filament length with
+the reel's diameter and multiplier; B (the valve) is absolute, 0..1, its
+sign flipped for nozzle 1. G0/G1 are split into segments of at most 2 mm of
+XYZ travel; each segment's Z gets the bed-levelling correction interpolated
+from the Z homes (inverse distance squared, washed out with height). X/Y
+travel is clamped to 0..travel once homed; an axis that is not homed does not
+move. Homing, tool changes, gantry levelling, the cover unlock and filament
+load/unload follow do_homing, do_tool_change, level_gantry, unlock_cover,
+do_filament_load/unload and do_move_filament_until_slip. Every 7.2 s the
+whole millimetres of filament used come off the reel's remaining length.
 """
 
 from __future__ import annotations
@@ -14,16 +22,32 @@ import math
 from collections.abc import Iterator
 
 from robox.firmware.cline import Line, float32, report_float, strtof
-from robox.firmware.gcode import Wait, wait_for
-from robox.firmware.motion import Block
+from robox.firmware.gcode import Wait
+from robox.firmware.motion import FLT_MAX
 from robox.formats.eeprom import EepromIndex
+from robox.formats.protocol import ErrorBit
+from robox.hardware.machine import AXES, B, D, E, X, Y, Z
 
+DEFAULT_FEED_RATE = 10.0  # units/s
 SEGMENT_MM = 2.0
-PARKING_Z = 2.0
-TRAVEL = {"X": 226.0, "Y": 155.0, "Z": 100.2}
-HOMING_SPEED = {"X": 60.0, "Y": 60.0, "Z": 3.0, "B": 4.0}
-EXTRUDERS = {"E": EepromIndex.REEL0, "D": EepromIndex.REEL1}
+FILAMENT_LOAD_ABANDON = 150.0
+FILAMENT_LOAD_SWITCH_OVERTRAVEL = 5.0
+FILAMENT_LOAD_DISTANCE_TO_SLIP = 100.0
+FILAMENT_LOAD_SPEED_TO_SLIP = 6.66
+FILAMENT_UNLOAD_ABANDON = 550.0
+FILAMENT_UNLOAD_DISTANCE = 35.0
+FILAMENT_SLIP_OVERTRAVEL = 5.0
+FILAMENT_SLIP_RETRY_DISTANCE = 8.3
 DEFAULT_DIAMETER = 1.75
+MAX_GANTRY_ADJUSTMENT = 10.0
+LEVELLING_MIN_X_DELTA = 50.0
+LEVELLING_POINTS = 9
+PARKING_Z = 2.0
+B_POSITION_WARNING_TOLERANCE = 0.15
+B_POSITION_LOST_TOLERANCE = 0.4
+NORMAL, LOADING_E, UNLOADING_E, LOADING_D, UNLOADING_D = range(5)
+REELS = (EepromIndex.REEL0, EepromIndex.REEL1)
+f32 = float32
 
 
 class Position:
@@ -31,49 +55,446 @@ class Position:
         self.fw = firmware
 
     def initialise(self) -> None:
-        # the firmware's bookkeeping: where moves should go (tool-relative) and where the
-        # machine will be once the queued moves are done, in mm (B: valve units)
-        self.logical = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
-        self.position = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
-        self.tool_offset = {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
+        self.motion = self.fw.motion
+        self.pa = self.fw.parameters.values
+        self.feed_rate = DEFAULT_FEED_RATE
+        self.feed_multiplier = [1.0, 1.0]
+        self.feed_multiplier_select = 0
+        self.tool = self.motion.selected_nozzle()
+        self.unpark_tool = 0
         self.relative = False
-        self.homed: set[str] = set()  # axes homed or set by G92 (B: a tool selected)
-        self.home_delta = dict.fromkeys("XYZEDB", 0.0)
-        self.levelling_points = 0
+        self.unpark_relative = False
+        self.unpark_feed_rate = 0.0
+        self.z_made_safe = False
+        self.homing_done = [False] * 6
+        self.destination = [0.0] * 6
+        self.position = [0.0] * 6
+        self.tool_offset = [0.0] * 6
+        self.unpark_destination = [0.0] * 6
+        self.home_delta = [0.0] * 6
+        self.diameter = [DEFAULT_DIAMETER, DEFAULT_DIAMETER]
+        self.multiplier = [1.0, 1.0]
+        self.levelling: list[tuple[float, float, float]] = []
         self.z_washout = 0.0
-        self.unpark_state: dict | None = None
-        self.feed_rate = 600.0  # mm/min (the firmware's 10 mm/s)
-        self.tool = 0
-        self.e_residue = {"E": 0.0, "D": 0.0}  # queued E/D not yet whole steps
-        self.filament = {"E": [DEFAULT_DIAMETER, 1.0], "D": [DEFAULT_DIAMETER, 1.0]}
-        self.feed_multiplier = {"E": 1.0, "D": 1.0}
-        self.total_mm = {"E": 0.0, "D": 0.0}
-        # filament queued since the last bookkeeping, in mm (float, as the firmware keeps it)
-        self.e_destination = {"E": 0.0, "D": 0.0}
+        self.what = NORMAL
+        self.extruded_mm = [0.0, 0.0]  # filament queued since power-up (a model statistic)
+
+    # --------------------------------------------------------- parameters
+    def _travel(self, axis: int) -> float:
+        return self.pa["travel"][AXES[axis]]
+
+    def _head_float(self, address: int, default: float = 0.0) -> float:
+        return self.fw.eeproms.float_at(EepromIndex.HEAD, address, default)
+
+    def _tool_float(self, tool: int, offset: int) -> float:
+        """A tool's offset from the head EEPROM (0x40 + 0x30 * tool + offset); tools
+        beyond 1 have none."""
+        return self._head_float(0x40 + tool * 0x30 + offset) if tool < 2 else 0.0
+
+    def filament_multiplier(self, i: int) -> float:
+        return self.multiplier[i]
+
+    # ------------------------------------------------------ levelling
+    def _add_levelling_point(self, x: float, y: float, z_delta: float) -> None:
+        shifted = [(px, py, f32(pz - z_delta)) for px, py, pz in self.levelling]
+        self.levelling = [(x, y, 0.0), *shifted[: LEVELLING_POINTS - 1]]
+
+    def z_correction(self, x_move: float, y_move: float, z_dest: float) -> float:
+        if not self.levelling:
+            return 0.0
+        x = f32(f32(self.position[X] + x_move) - self.tool_offset[X])
+        y = f32(f32(self.position[Y] + y_move) - self.tool_offset[Y])
+        total = acc = 0.0
+        for px, py, pz in self.levelling:
+            dx = f32(px - x)
+            dy = f32(py - y)
+            v = f32(f32(dx * dx) + f32(dy * dy))
+            if v < 1.0e-10:
+                return pz
+            v = f32(1.0 / v)
+            total = f32(total + v)
+            acc = f32(acc + f32(v * pz))
+        acc = f32(acc / total)
+        v = f32(max(0.0, min(1.0, 1.0 - f32(z_dest * self.z_washout))))
+        return f32(acc * v)
+
+    # ------------------------------------------------------------ moves
+    def do_move(self, feed_rate: float, speed_limit: float) -> Iterator[Wait]:
+        """Queue the move that brings the position to the destination (travel limits,
+        tool offsets, levelling), then book the distances the steps really make."""
+        pa = self.pa
+        pos, dest, off = self.position, self.destination, self.tool_offset
+        moves = [0.0] * 6
+        for i in (X, Y):
+            if self.homing_done[i]:
+                target = max(0.0, min(self._travel(i), f32(dest[i] + off[i])))
+                moves[i] = f32(target - pos[i])
+        if self.homing_done[Z]:
+            target = min(self._travel(Z),
+                         max(0.0, dest[Z]) + off[Z] + self.z_correction(moves[X], moves[Y],
+                                                                         dest[Z]))
+            moves[Z] = f32(target - pos[Z])
+        check_z_top = pos[Z] + max(moves[Z], 0.0) < pa["z_top_switch_min"]
+        for i in (E, D):
+            moves[i] = f32(dest[i] - pos[i])
+        opening = f32(max(0.0, min(1.0, dest[B])))
+        opening = opening if self.tool == 0 else -opening
+        moves[B] = f32(opening - pos[B]) if self.homing_done[B] else 0.0
+        yield from self.motion.add_block(feed_rate, speed_limit, check_z_top, moves)
+        for i in range(6):
+            pos[i] = f32(pos[i] + moves[i])
+
+    def move(self, line: Line, rapid: bool = False) -> Iterator[Wait]:
+        """G0/G1 (do_g0_g1)."""
+        moves = [0.0] * 6
+        has_xyz = has_edb = False
+        distance = 0.0
+        dest = self.destination
+        for i in (X, Y, Z):
+            c = AXES[i]
+            if line.has(c):
+                moves[i] = line.float(c) if self.relative else f32(line.float(c) - dest[i])
+                has_xyz = True
+                distance = f32(distance + f32(moves[i] * moves[i]))
+        distance = f32(math.sqrt(distance))
+        for n, i in enumerate((E, D)):
+            c = AXES[i]
+            if line.has(c):
+                area = f32(self.diameter[n] * self.diameter[n]) * math.pi / 4.0
+                moves[i] = f32(f32(line.float(c) * self.multiplier[n]) / area)
+                self.feed_multiplier_select = n
+                has_edb = True
+        if line.has("B"):
+            moves[B] = f32(line.float("B") - dest[B])
+            has_edb = True
+        if line.has("F"):
+            self.feed_rate = f32(line.float("F") / 60.0)
+        segments = 1 + int(distance / SEGMENT_MM)
+        for i in range(6):
+            moves[i] = f32(moves[i] / f32(segments))
+        for n in (0, 1):
+            self.extruded_mm[n] += moves[E + n] * segments
+        for _ in range(segments):
+            for i in range(6):
+                dest[i] = f32(dest[i] + moves[i])
+            if rapid:
+                yield from self.do_move(FLT_MAX, FLT_MAX)
+            elif has_xyz:
+                rate = self.feed_rate
+                if has_edb:
+                    rate = f32(rate * self.feed_multiplier[self.feed_multiplier_select])
+                yield from self.do_move(rate, FLT_MAX)
+            else:
+                yield from self.do_move(FLT_MAX, self.feed_rate)
+
+    def select_tool(self, tool: int, line: Line) -> Iterator[Wait]:
+        """T0/T1 (do_tool_change): Z first when it goes up, last when it goes down; the
+        new nozzle selected before X/Y when the old one hangs lower, after otherwise."""
+        tool = max(0, min(2, tool))
+        old = self._tool_float(self.tool, 16)
+        new_z = self._tool_float(tool, 16)
+        z_diff = f32(new_z - old)
+        z_move = z_diff
+        dest, off = self.destination, self.tool_offset
+        if line.has("Z"):
+            z_move = f32(z_move + line.float("Z"))
+            if not self.relative:
+                z_move = f32(z_move - dest[Z])
+        for step in range(5):
+            if (step == 0 and z_move >= 0.0) or (step == 4 and z_move < 0.0):
+                if line.has("Z"):
+                    dest[Z] = f32(dest[Z] + line.float("Z")) if self.relative \
+                        else line.float("Z")
+                off[Z] = new_z
+                yield from self.do_move(FLT_MAX, FLT_MAX)
+            if (step == 1 and z_diff < 0.0) or (step == 3 and z_diff >= 0.0):
+                yield from self._select_valve(tool, line)
+                self.tool = tool
+            if step == 2:
+                for i in (X, Y):
+                    c = AXES[i]
+                    if line.has(c):
+                        dest[i] = f32(dest[i] + line.float(c)) if self.relative \
+                            else line.float(c)
+                off[X] = f32(self._tool_float(tool, 0) + self.pa["x_offset"])
+                off[Y] = f32(self._tool_float(tool, 8) + self.pa["y_offset"])
+                yield from self.do_move(FLT_MAX, FLT_MAX)
+
+    def _select_valve(self, tool: int, line: Line) -> Iterator[Wait]:
+        if not self.fw.eeproms.head_has_b_axis():
+            return
+        dest, off = self.destination, self.tool_offset
+        delta = f32(max(0.0, min(1.0, dest[B])))  # the previous opening
+        delta = f32(delta + abs(off[B]))  # and B offset
+        if line.has("B"):
+            dest[B] = line.float("B")
+        off[B] = self._tool_float(tool, 24)
+        opening = f32(max(0.0, min(1.0, dest[B])))
+        opening = opening if tool == 0 else -opening
+        measured = yield from self.motion.select_nozzle(f32(opening + off[B]), self._travel(B))
+        delta = f32(measured - delta)
+        if self.homing_done[B]:
+            if abs(delta) > B_POSITION_LOST_TOLERANCE:
+                self.fw.heaters.enable_nozzle_forcing()
+                self.fw.errors.set(ErrorBit.B_POSITION_LOST)
+            elif abs(delta) > B_POSITION_WARNING_TOLERANCE:
+                self.fw.errors.set(ErrorBit.B_POSITION_WARNING)
+            self.home_delta[B] = delta
+        self.position[B] = opening
+        self.homing_done[B] = True
+
+    def home(self, line: Line) -> Iterator[Wait]:
+        """G28 (do_homing): Z made safe once, then X and Y (absolute), then Z
+        (nozzle-relative, adding a levelling point); '?' measures without setting."""
+        pa = self.pa
+        off = self.tool_offset
+        off[X] = f32(self._tool_float(self.tool, 0) + pa["x_offset"])
+        off[Y] = f32(self._tool_float(self.tool, 8) + pa["y_offset"])
+        off[Z] = self._tool_float(self.tool, 16)
+        tweak = f32(0.5 * f32(self._head_float(0x50) + self._head_float(0x80))) \
+            if self.tool < 2 else 0.0
+        if not self.z_made_safe:
+            yield from self.motion.make_z_safe()
+            self.z_made_safe = True
+        measure_only = line.has("?")
+        pos, dest = self.position, self.destination
+        for i in (X, Y):
+            if not line.has(AXES[i]):
+                continue
+            home_distance = pa["home_distance"][AXES[i]]
+            travel = self._travel(i)
+            moved = yield from self.motion.home_axis(i, home_distance, f32(1.5 * travel))
+            pos[i] = f32(pos[i] + moved)
+            self.home_delta[i] = f32(pos[i] - travel) if home_distance >= 0.0 else pos[i]
+            if not measure_only:
+                pos[i] = travel if home_distance >= 0.0 else 0.0
+                dest[i] = f32(pos[i] - off[i])
+                self.homing_done[i] = True
+            yield from self.do_move(FLT_MAX, FLT_MAX)
+        if line.has("Z"):
+            home_distance = pa["home_distance"]["Z"]
+            moved = yield from self.motion.home_axis(Z, home_distance,
+                                                     f32(1.5 * self._travel(Z)))
+            pos[Z] = f32(pos[Z] + moved)
+            should = f32(f32(home_distance + tweak) + off[Z])
+            self.home_delta[Z] = f32(pos[Z] - should)
+            if not measure_only:
+                pos[Z] = should
+                dest[Z] = 0.0
+                self.homing_done[Z] = True
+                self._add_levelling_point(f32(pos[X] - off[X]), f32(pos[Y] - off[Y]),
+                                          self.home_delta[Z])
+            yield from self.do_move(FLT_MAX, FLT_MAX)
+
+    def set_position(self, line: Line) -> Iterator[Wait]:
+        """G92: wait for motion; the axes given are where the head is, and count as homed."""
+        yield from self.motion.wait_until_empty()
+        for i in (X, Y, Z):
+            c = AXES[i]
+            if line.has(c):
+                self.destination[i] = line.float(c)
+                self.position[i] = f32(self.destination[i] + self.tool_offset[i])
+                self.homing_done[i] = True
+                if i == Z:
+                    self.position[Z] = f32(self.position[Z]
+                                           + self.z_correction(0.0, 0.0, self.destination[Z]))
+
+    def unlock_cover(self, line: Line) -> Iterator[Wait]:
+        """G37: home Y if needed; unless S, heaters off and wait for the bed to cool (the
+        ambient fan helping); then Y to the unlock position, beyond its travel."""
+        if not self.homing_done[Y]:
+            yield from self.home(Line(b"Y"))
+        heaters = self.fw.heaters
+        if not line.has("S"):
+            heaters.turn_off()
+            heaters.force_ambient_fan = True
+            yield from heaters.wait_for_bed_cool()
+            heaters.force_ambient_fan = False
+        if not self.fw.job.abort_flag:
+            moves = [0.0] * 6
+            moves[Y] = f32(self.pa["cover_unlock_y"] - self.position[Y])
+            yield from self.motion.add_block(FLT_MAX, FLT_MAX, False, moves)
+            self.position[Y] = f32(self.position[Y] + moves[Y])
+            self.destination[Y] = f32(self.position[Y] - self.tool_offset[Y])
+
+    def level_gantry(self) -> Iterator[Wait]:
+        """G38: from the last two Z homes, at least 50 mm apart in X, turn the gantry
+        (clamped to 10 mm, MAX_GANTRY_ADJUSTMENT) and correct Z for where it was homed."""
+        if len(self.levelling) < 2:
+            return
+        pa = self.pa
+        self.levelling = self.levelling[:2]
+        (x0, _y0, z0), (x1, y1, z1) = self.levelling
+        x_delta = f32(x0 - x1)
+        z_delta = f32(z0 - z1)
+        if x_delta < LEVELLING_MIN_X_DELTA:
+            return
+        za, zb = pa["za_leadscrew_x"], pa["zb_leadscrew_x"]
+        adj = f32(f32(z_delta * f32(zb - za)) / x_delta)
+        if abs(adj) > MAX_GANTRY_ADJUSTMENT:
+            self.fw.errors.set(ErrorBit.MAX_GANTRY_ADJUSTMENT)
+            adj = f32(max(-MAX_GANTRY_ADJUSTMENT, min(MAX_GANTRY_ADJUSTMENT, adj)))
+        yield from self.motion.rotate_gantry(adj)
+        self.levelling[1] = (x1, y1, 0.0)
+        middle = 0.5 * f32(za + zb)
+        self.position[Z] = f32(self.position[Z]
+                               - adj * (middle - self.levelling[0][0]) / f32(zb - za))
+        yield from self.do_move(FLT_MAX, FLT_MAX)
+
+    def level_bed(self, line: Line) -> None:
+        """G39: S sets the washout; without it the levelling points are forgotten."""
+        if line.has("S"):
+            self.z_washout = line.float("S")
+        else:
+            self.levelling = []
+
+    # ------------------------------------------------------------ filament
+    def load_filament(self, line: Line) -> Iterator[Wait]:
+        """M120 (do_filament_load): grab each filament named, carriage to the load X,
+        load it, then push it on until it slips."""
+        pa = self.pa
+        motion = self.motion
+        started = {E: False, D: False}
+        for i in (E, D):
+            if line.has(AXES[i]):
+                self.what = LOADING_D if i == D else LOADING_E
+                started[i] = yield from motion.grab_filament(
+                    i, FILAMENT_LOAD_SWITCH_OVERTRAVEL, FILAMENT_LOAD_ABANDON)
+        aborting = self.fw.job
+        if not aborting.abort_flag and (started[E] or started[D]):
+            if not self.homing_done[X]:
+                yield from self.home(Line(b"X"))
+            if not aborting.abort_flag:
+                self.destination[X] = min(pa["filament_load_x"], self._travel(X))
+                yield from self.do_move(FLT_MAX, FLT_MAX)
+        for i in (E, D):
+            if started[i] and not aborting.abort_flag:
+                self.what = LOADING_D if i == D else LOADING_E
+                loaded = yield from motion.load_filament(
+                    i, FILAMENT_LOAD_SWITCH_OVERTRAVEL, pa["home_distance"][AXES[i]])
+                if loaded:
+                    yield from motion.move_filament_until_slip(
+                        i, FILAMENT_SLIP_OVERTRAVEL, FILAMENT_LOAD_DISTANCE_TO_SLIP,
+                        FILAMENT_LOAD_SPEED_TO_SLIP)
+        self.what = NORMAL
+
+    def unload_filament(self, line: Line, pause: bool) -> Iterator[Wait]:
+        """M121 (pausing a running job first) and M122: carriage to the load X, the
+        nozzle to its unload temperature, then the filament back out."""
+        job = self.fw.job
+        heaters = self.fw.heaters
+        dual = self.fw.eeproms.head_dual_material()
+        for i in (E, D):
+            if not line.has(AXES[i]):
+                continue
+            self.what = UNLOADING_D if i == D else UNLOADING_E
+            if pause:
+                yield from job.pause_and_park()
+            if not job.abort_flag and not self.homing_done[X]:
+                yield from self.home(Line(b"X"))
+            if not job.abort_flag:
+                self.destination[X] = min(self.pa["filament_load_x"], self._travel(X))
+                yield from self.do_move(FLT_MAX, FLT_MAX)
+            if dual:  # E feeds nozzle 1 and D nozzle 0 on a dual-material head
+                yield from heaters.heat_for_filament_unload(line.has("D"), line.has("E"))
+            else:
+                yield from heaters.heat_for_filament_unload(line.has("E"), line.has("D"))
+            if not job.abort_flag:
+                yield from self.motion.unload_filament(i, FILAMENT_UNLOAD_DISTANCE,
+                                                       FILAMENT_UNLOAD_ABANDON)
+        self.what = NORMAL
+
+    def move_filament_until_slip(self, line: Line) -> Iterator[Wait]:
+        """G36: each filament named moves until it slips (F: its own speed, mm/min)."""
+        speed = f32(line.float("F") / 60.0) if line.has("F") else FLT_MAX
+        for i in (E, D):
+            c = AXES[i]
+            if not line.has(c):
+                continue
+            v = line.float(c)
+            overtravel = min(FILAMENT_SLIP_OVERTRAVEL, abs(v))
+            overtravel = -overtravel if v < 0.0 else overtravel
+            moved = yield from self.motion.move_filament_until_slip(i, f32(overtravel),
+                                                                    f32(abs(v)), speed)
+            self.destination[i] = f32(self.destination[i] + moved)
+            self.position[i] = f32(self.position[i] + moved)
+
+    def filament_slip_retry(self, extruder: int) -> Iterator[Wait]:
+        """Back the filament off 8.3 mm; if the wheel turned, wait 5 s and push it back
+        (True), otherwise back it off again (False)."""
+        motion = self.motion
+        axis = E + extruder
+        yield from motion.wait_until_empty()
+        motion.has_index_wheel_moved(extruder)
+        self.destination[axis] = f32(self.destination[axis] - FILAMENT_SLIP_RETRY_DISTANCE)
+        yield from self.do_move(FLT_MAX, FLT_MAX)
+        yield from motion.wait_until_empty()
+        if motion.has_index_wheel_moved(extruder):
+            yield from self.fw.job.delay_aborting(5.0)
+            self.destination[axis] = f32(self.destination[axis] + FILAMENT_SLIP_RETRY_DISTANCE)
+            yield from self.do_move(FLT_MAX, FLT_MAX)
+            yield from motion.wait_until_empty()
+            return True
+        self.destination[axis] = f32(self.destination[axis] - FILAMENT_SLIP_RETRY_DISTANCE)
+        yield from self.do_move(FLT_MAX, FLT_MAX)
+        yield from motion.wait_until_empty()
+        return False
+
+    # ---------------------------------------------------------- parking
+    def park(self) -> Iterator[Wait]:
+        """Wait for motion, remember where the job was, close the valve, lift Z 2 mm."""
+        yield from self.motion.wait_until_empty()
+        self.unpark_relative = self.relative
+        self.unpark_feed_rate = self.feed_rate
+        self.unpark_tool = self.tool
+        self.unpark_destination = list(self.destination)
+        self.destination[B] = 0.0
+        yield from self.do_move(FLT_MAX, FLT_MAX)
+        self.destination[Z] = f32(self.destination[Z] + PARKING_Z)
+        yield from self.do_move(FLT_MAX, FLT_MAX)
+        yield from self.motion.wait_until_empty()
+        self.fw.heaters.pause()
+
+    def unpark(self, reselect_tool: bool = False) -> Iterator[Wait]:
+        """Heaters back to temperature, then back to where the job was, its modes and
+        its tool; the valve reopens last."""
+        yield from self.fw.heaters.resume()
+        if self.fw.job.abort_flag:
+            return
+        self.relative = self.unpark_relative
+        self.feed_rate = self.unpark_feed_rate
+        saved = self.unpark_destination
+        for i in (X, Y, Z):
+            self.destination[i] = saved[i]
+        self.destination[B] = min(self.destination[B], saved[B])
+        if reselect_tool or self.tool != self.unpark_tool:
+            yield from self.select_tool(self.unpark_tool, Line(b""))
+        else:
+            yield from self.do_move(FLT_MAX, FLT_MAX)
+        self.destination[B] = saved[B]
+        yield from self.do_move(FLT_MAX, FLT_MAX)
 
     # ------------------------------------------------------ reel settings
     def filament_info_from_reel(self) -> None:
         """Diameter, multiplier and feed-rate multiplier of each extruder from its reel;
         a value stays as it is when that reel is not VALID."""
         eeproms = self.fw.eeproms
-        for extruder, index in EXTRUDERS.items():
-            diameter, multiplier = self.filament[extruder]
-            self.filament[extruder] = [eeproms.float_at(index, 0x50, diameter),
-                                       eeproms.float_at(index, 0x58, multiplier)]
-        for extruder, index in EXTRUDERS.items():
-            self.feed_multiplier[extruder] = eeproms.float_at(index, 0x60,
-                                                              self.feed_multiplier[extruder])
-
+        for n, index in enumerate(REELS):
+            self.diameter[n] = eeproms.float_at(index, 0x50, self.diameter[n])
+            self.multiplier[n] = eeproms.float_at(index, 0x58, self.multiplier[n])
+        for n, index in enumerate(REELS):
+            self.feed_multiplier[n] = eeproms.float_at(index, 0x60, self.feed_multiplier[n])
 
     def update_reel_filament_length(self) -> None:
-        """Every 7.2 s: whole millimetres queued since the last time come off each reel's
-        remaining length (the reel's field is rewritten even when nothing was used)."""
+        """Every 7.2 s: the whole millimetres of each extruder's destination come off its
+        reel's remaining length (the field is rewritten even when nothing was used)."""
         eeproms = self.fw.eeproms
-        for extruder, index in EXTRUDERS.items():
-            used = math.floor(self.e_destination[extruder])
-            eeproms.write_float_at(index, 0xB8,
-                                   float32(eeproms.float_at(index, 0xB8, 0.0) - used))
-            self.e_destination[extruder] = float32(self.e_destination[extruder] - used)
+        for n, index in enumerate(REELS):
+            axis = E + n
+            used = math.floor(self.destination[axis])
+            eeproms.write_float_at(index, 0xB8, f32(eeproms.float_at(index, 0xB8, 0.0) - used))
+            self.destination[axis] = f32(self.destination[axis] - used)
+            self.position[axis] = f32(self.position[axis] - used)
 
     def extruder_present(self, extruder: str) -> bool:
         if extruder == "E":
@@ -82,274 +503,41 @@ class Position:
         return head.status(EepromIndex.HEAD) == 2 and \
             head.states[EepromIndex.HEAD].data[:16].rstrip(b"\0 ").endswith(b"DM")
 
+    def set_filament_info(self, extruder: str, raw: bytes) -> None:
+        """0xc8/0xc9: diameter (at least 0.1) and multiplier (at least 0)."""
+        n = "ED".index(extruder)
+        self.diameter[n] = max(0.1, strtof(raw[:8]))
+        self.multiplier[n] = max(0.0, strtof(raw[8:16]))
+
+    def set_feed_rate_multiplier(self, extruder: str, raw: bytes) -> None:
+        self.feed_multiplier["ED".index(extruder)] = max(0.0, strtof(raw[:8]))
+
     # --------------------------------------------------------- reporting
-    def steps_per_mm(self, axis: str) -> float:
-        return self.fw.parameters.values["steps_per_unit"][axis]
-
-    def reported_position(self, axis: str) -> float:
-        """Where the head will be once queued moves are done, less the tool offset."""
-        return float32(self.position[axis] - self.tool_offset[axis])
-
-    def _eeprom_offset(self, tool: int, axis: str) -> float:
-        """Tool `tool`'s offset from the head EEPROM (tools 0 and 1; none for others)."""
-        if tool >= 2:
-            return 0.0
-        address = 0x40 + 0x30 * tool + 8 * "XYZB".index(axis)
-        return self.fw.eeproms.float_at(EepromIndex.HEAD, address, 0.0)
+    def _shown(self) -> tuple[float, float, float, float]:
+        pos, off = self.position, self.tool_offset
+        z = f32(pos[Z] - f32(off[Z] + self.z_correction(0.0, 0.0, self.destination[Z])))
+        b = pos[B] if self.tool == 0 else -pos[B]
+        return f32(pos[X] - off[X]), f32(pos[Y] - off[Y]), z, b
 
     def m114_text(self) -> bytes:
-        x, y, z = (self.reported_position(a) for a in "XYZ")
-        b = self.reported_position("B") * (-1 if self.tool == 1 else 1)
+        x, y, z, b = self._shown()
         return f"X:{x:f} Y:{y:f} Z:{z:f} B:{b:f} T:{self.tool}\r\n".encode()
 
-    def _switches(self) -> dict[str, int]:
-        """Each switch as the firmware reads it (input XOR its invert setting)."""
-        m = self.fw.hw.machine
-        a = m.axes
-        return {"X": a["X"].switch, "Y": a["Y"].switch, "Z": a["Z"].switch,
-                "E": m.filament_e, "D": m.filament_d, "B": a["B"].switch}
-
-    def m119_text(self) -> bytes:
-        m = self.fw.hw.machine
-        s = {k: int(bool(v)) for k, v in self._switches().items()}
-        return (f"M119 X:{s['X']} Y:{s['Y']} Z:{s['Z']} Z+:{int(m.z_top_switch)} "
-                f"E:{s['E']} D:{s['D']} B:{s['B']} Eindex:{int(m.index_e)} "
-                f"Dindex:{int(m.index_d)}\r\n").encode()
-
-    def switch_flags(self) -> bytes:
-        """Status bytes 27..33: X, Y, Z, E, D, B switches and the lid."""
-        flags = [*self._switches().values(), self.fw.hw.machine.lid_closed]
-        return bytes(0x31 if f else 0x30 for f in flags)
-
-    def index_and_z_top_flags(self) -> bytes:
-        m = self.fw.hw.machine
-        return bytes(0x31 if f else 0x30 for f in (m.index_e, m.index_d, m.z_top_switch))
+    def delta_text(self, axis: str) -> bytes:
+        return f"{axis}delta:{self.home_delta[AXES.index(axis)]:f}\r\n".encode()
 
     def position_report(self) -> bytes:
         """Status bytes 139..171: X, Y, Z, B as float8 (NUL padded), then the tool."""
-        x, y, z = (self.reported_position(a) for a in "XYZ")
-        b = self.reported_position("B") * (-1 if self.tool == 1 else 1)
-        return b"".join(report_float(v) for v in (x, y, z, b)) + b"%d" % self.tool
+        return b"".join(report_float(v) for v in self._shown()) + b"%d" % self.tool
 
     def filament_report(self) -> bytes:
         """Status bytes 172..219: E and D diameters and multipliers, then the D and E
         feed-rate multipliers."""
-        (ed, em), (dd, dm) = self.filament["E"], self.filament["D"]
-        values = (ed, em, dd, dm, self.feed_multiplier["D"], self.feed_multiplier["E"])
+        values = (self.diameter[0], self.multiplier[0], self.diameter[1], self.multiplier[1],
+                  self.feed_multiplier[1], self.feed_multiplier[0])
         return b"".join(report_float(v) for v in values)
 
-    def set_filament_info(self, extruder: str, raw: bytes) -> None:
-        """0xc8/0xc9: diameter (at least 0.1) and multiplier (at least 0)."""
-        self.filament[extruder] = [max(0.1, strtof(raw[:8])), max(0.0, strtof(raw[8:16]))]
-
-    def set_feed_rate_multiplier(self, extruder: str, raw: bytes) -> None:
-        self.feed_multiplier[extruder] = max(0.0, strtof(raw[:8]))
-
-    # ------------------------------------------------------------- moves
-    def select_tool(self, tool: int, line: Line | None = None) -> Iterator[Wait]:
-        """T0/T1 (any other number is clamped): the valve axis counts as homed after it."""
-        tool = max(0, min(2, tool))
-        yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-        self.tool = tool
-        for axis in "XYZB":
-            self.tool_offset[axis] = self._eeprom_offset(tool, axis)
-        self.homed.add("B")
-        yield from self._go(dict(self.logical))
-
-    def set_position(self, line: Line) -> Iterator[Wait]:
-        """G92: wait for motion, then X/Y/Z given are where the head is, and count as homed."""
-        yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-        for axis in "XYZ":
-            if line.has(axis):
-                self.logical[axis] = line.float(axis)
-                self.position[axis] = float32(self.logical[axis] + self.tool_offset[axis])
-                self.homed.add(axis)
-
-    def delta_text(self, axis: str) -> bytes:
-        return f"{axis}delta:{self.home_delta[axis]:f}\r\n".encode()
-
-    def filament_mm(self, extruder: str, volume: float) -> float:
-        """Volume (mm3) as filament length, in the firmware's float arithmetic."""
-        diameter, multiplier = self.filament[extruder]
-        return float32(float32(volume * multiplier) / (float32(diameter * diameter) * math.pi
-                                                       / 4.0))
-
-    def move(self, line: Line, rapid: bool = False) -> Iterator[Wait]:
-        """G0/G1. X/Y/Z move only once homed (or set by G92), the valve B once a tool has
-        been selected; E and D always. A move's target is kept even when it is dropped."""
-        p = {c: line.float(c) for c in "XYZEDBF" if line.has(c)}
-        if "F" in p:
-            self.feed_rate = p["F"]
-        target = dict(self.logical)
-        distance = 0.0
-        for axis in "XYZ":
-            if axis in p:
-                delta = p[axis] if self.relative else float32(p[axis] - self.logical[axis])
-                target[axis] = float32(self.logical[axis] + delta)
-                distance = float32(distance + float32(delta * delta))
-        if "B" in p:
-            target["B"] = p["B"]
-        segments = 1 + int(float32(math.sqrt(distance)) / SEGMENT_MM)
-        extrude = {e: self.filament_mm(e, p[e]) for e in "ED" if e in p}
-        for e, mm in extrude.items():
-            per = float32(mm / segments)
-            for _ in range(segments):
-                self.e_destination[e] = float32(self.e_destination[e] + per)
-        speed = self.feed_rate / 60.0 if self.feed_rate > 0 else 1e9
-        if rapid:
-            speed = 1e9
-        elif extrude:
-            extruder = "D" if "D" in extrude and "E" not in extrude else "E"
-            speed *= self.feed_multiplier[extruder]
-        start = dict(self.logical)
-        for n in range(1, segments + 1):
-            for a in "XYZB":
-                self.logical[a] = start[a] + (target[a] - start[a]) * n / segments
-            yield from self._do_move({e: mm / segments for e, mm in extrude.items()}, speed)
-        self.logical = target
-
-    def _machine_target(self, axis: str) -> float:
-        """Where the machine should be for the logical target: the firmware's do_move,
-        travel limits and the valve's 0..1 range (flipped for tool 1) included."""
-        dest = self.logical[axis] + self.tool_offset[axis] if axis != "B" else self.logical["B"]
-        if axis in "XY":
-            return max(0.0, min(TRAVEL[axis], dest))
-        if axis == "Z":
-            return min(TRAVEL["Z"], max(0.0, self.logical["Z"]) + self.tool_offset["Z"])
-        opening = max(0.0, min(1.0, dest))
-        return opening if self.tool == 0 else -opening
-
-    def _do_move(self, extrude: dict[str, float], speed: float) -> Iterator[Wait]:
-        moves = {a: self._machine_target(a) - self.position[a] if a in self.homed else 0.0
-                 for a in "XYZB"}
-        moves.update(extrude)
-        yield from self._segment(moves, speed)
-
-    def _segment(self, part: dict[str, float], speed: float) -> Iterator[Wait]:
-        """Queue whole steps for `part` (mm); what is left over stays in the position
-        bookkeeping (X/Y/Z/B) or the E/D residue, so it is carried into the next move."""
-        steps = {}
-        for axis, mm in part.items():
-            if axis in "ED":
-                mm += self.e_residue[axis]
-            whole = math.floor(mm * self.steps_per_mm(axis) + 0.5)
-            if whole:
-                steps[axis] = whole
-        if not steps:
-            for axis in "ED":
-                if axis in part:
-                    self.e_residue[axis] += part[axis]
-            return  # shorter than a step: absorbed into the next move
-        for axis, mm in part.items():
-            actual = float32(steps.get(axis, 0) / self.steps_per_mm(axis))
-            if axis in "ED":
-                self.e_residue[axis] = mm + self.e_residue[axis] - actual
-            else:
-                self.position[axis] = float32(self.position[axis] + actual)
-        xyz = [steps.get(a, 0) / self.steps_per_mm(a) for a in "XYZ"]
-        length = math.sqrt(sum(v * v for v in xyz))
-        if length > 0:
-            direction = tuple(v / length for v in xyz)
-        else:
-            length = max(abs(steps.get(a, 0)) / self.steps_per_mm(a) for a in "EDB")
-            direction = (0.0, 0.0, 0.0)
-        limits = self.fw.parameters.values["max_speed"]
-        for axis, count in steps.items():
-            axis_mm = abs(count) / self.steps_per_mm(axis)
-            if axis_mm > 0 and length > 0:
-                speed = min(speed, limits[axis] * length / axis_mm)
-        motion = self.fw.motion
-        yield from wait_for(motion.room, Wait(motion=True))
-        motion.add(Block(steps, length, max(speed, 0.1), direction))
-
-    def home(self, line: Line) -> Iterator[Wait]:
-        """G28 with the axes named (G28 alone homes nothing): each runs towards its switch
-        until it closes. Mechanics in detail belong to the machine model."""
-        motion = self.fw.motion
-        for axis in "XYZ":
-            self.tool_offset[axis] = self._eeprom_offset(self.tool, axis)
-        yield from wait_for(motion.idle, Wait(motion=True))
-        for axis in "XYZ":
-            if not line.has(axis):
-                continue
-            hw_axis = self.fw.hw.machine.axes[axis]
-            distance = max(0, hw_axis.position) / self.steps_per_mm(axis)
-            motion.add(Block({}, distance, HOMING_SPEED[axis], homing=axis))
-            yield from wait_for(motion.idle, Wait(motion=True))
-            self.position[axis] = 0.0
-            self.logical[axis] = float32(-self.tool_offset[axis])
-            self.homed.add(axis)
-
-    def _go(self, target: dict[str, float]) -> Iterator[Wait]:
-        """A rapid move of the homed axes to `target` (logical coordinates)."""
-        self.logical = dict(target)
-        yield from self._do_move({}, 1e9)
-
-    def move_filament_until_slip(self, line: Line) -> Iterator[Wait]:
-        """G36: with no filament at the sensor nothing moves."""
-        machine = self.fw.hw.machine
-        for extruder in "ED":
-            if line.has(extruder):
-                yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-                present = machine.filament_e if extruder == "E" else machine.filament_d
-                if not present:
-                    continue
-
-    def unlock_cover(self, line: Line) -> Iterator[Wait]:
-        """G37: heaters off and the bed left to cool first, unless S."""
-        if not line.has("S"):
-            self.fw.heaters.turn_off()
-            yield from self.fw.heaters.wait_for_bed_cool()
-
-    def level_gantry(self) -> Iterator[Wait]:
-        """G38 needs two Z probe points; without them it does nothing."""
-        if self.levelling_points < 2:
-            return
-        yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-
-    def level_bed(self, line: Line) -> None:
-        if line.has("S"):
-            self.z_washout = line.float("S")
-        else:
-            self.levelling_points = 0
-
-    def filament_load_unload(self, code: int, line: Line) -> Iterator[Wait]:
-        """M120/M121/M122: the moves wait for the queue; loading needs filament."""
-        for extruder in "ED":
-            if line.has(extruder):
-                yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-
-    def completed(self, block: Block) -> None:
-        for extruder in "ED":
-            if extruder in block.steps:
-                mm = block.steps[extruder] / self.steps_per_mm(extruder)
-                self.total_mm[extruder] += mm
-
-    # ----------------------------------------------------- pause parking
-    def park(self) -> Iterator[Wait]:
-        """Wait for motion, remember where the job was, close the valve, lift Z 2 mm."""
-        yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-        self.unpark_state = {"logical": dict(self.logical), "feed_rate": self.feed_rate,
-                             "relative": self.relative, "tool": self.tool}
-        target = dict(self.logical)
-        target["B"] = 0.0
-        yield from self._go(target)
-        target["Z"] += PARKING_Z
-        yield from self._go(target)
-        yield from wait_for(self.fw.motion.idle, Wait(motion=True))
-
-    def unpark(self) -> Iterator[Wait]:
-        """Return to where the job was parked and restore its modes and tool."""
-        state = self.unpark_state
-        if state is None:
-            return
-        self.relative = state["relative"]
-        self.feed_rate = state["feed_rate"]
-        saved = state["logical"]
-        target = dict(saved)
-        target["B"] = min(self.logical["B"], saved["B"])
-        if state["tool"] != self.tool:
-            self.tool = state["tool"]
-        yield from self._go(target)
-        yield from self._go(dict(saved))
-
+    def busy_state(self) -> bytes | None:
+        """Status byte 26 while filament is being loaded ('2', '4') or unloaded ('3', '5')."""
+        return {LOADING_E: b"2", UNLOADING_E: b"3", LOADING_D: b"4",
+                UNLOADING_D: b"5"}.get(self.what)

@@ -1,5 +1,32 @@
-"""The printer's mechanics and thermals as the firmware drives them: axes with home
-switches, heaters with first-order thermal models, fans, LEDs, button, head power."""
+"""The printer's mechanics and thermals as the firmware drives them.
+
+Motors count microsteps; the switches, the Z-top switch, the filament sensors
+and the index wheels follow the positions (docs/firmware-model.md, "The
+machine"). Positions are at the factory steps/mm, 0 at each switch's trip
+point:
+
+- X, Y: the switch is actuated at 0 and below.
+- Z: two leadscrew motors (ZA at X = -37.546 mm, ZB at X = 251.5 mm); the
+  nozzle height is the gantry line between them at the carriage's X, and
+  the Z switch is actuated at height 0 and below, the Z-top switch at 95 mm
+  and above.
+- B: the valve; its switch is actuated at 0 and above (the nozzle-0 side).
+- E, D: filament paths. Along a path (in the extruder's microsteps) the
+  drive and its index wheel sit at 0, the filament sensor just after them and
+  the nozzle at the end. A filament occupies [tail, tip]; the drive moves it
+  while it is under the drive; pushed against a nozzle below 150 C it does
+  not move (the drive slips), above that it is extruded (the tip stays, the
+  tail follows). The index wheel's level toggles every 256 microsteps of
+  filament passing it.
+
+Faults: a switch stuck at a level (`stuck`), a wheel that does not turn
+(`wheel_slipping`), filament that runs out (a short `tail`), a hand feeding
+filament in (`feed_by_hand`, what starts an automatic load).
+
+The motion object moves motors with `step(axis, n)`; `quiet_steps(select)`
+bounds how far any motor may move before an input the step interrupt reads
+could change, so whole runs of interrupts can be done at once.
+"""
 
 from __future__ import annotations
 
@@ -7,20 +34,28 @@ import math
 from dataclasses import dataclass, field
 
 AXES = "XYZEDB"
+X, Y, Z, E, D, B = range(6)
+STEPS_PER_MM = (133.7, 133.7, 6400.0, 747.0, 747.0, 2500.0)
+ZA_X_MM, ZB_X_MM = -37.546, 251.5
+Z_TOP_MM = 95.0
+INDEX_EDGE_STEPS = 256
+SENSOR_MM = 10.0  # filament sensor after the drive
+NOZZLE_MM = 380.0  # drive to nozzle, through the Bowden tube
+MELT_C = 150.0
+HAND_SPEED_MM_S = 20.0
+NEVER = 1 << 60
+
+
+def _steps(axis: int, mm: float) -> int:
+    return round(mm * STEPS_PER_MM[axis])
 
 
 @dataclass
-class Axis:
-    """A stepper axis: position in microsteps; the home switch closes at or below zero."""
+class Filament:
+    """A length of filament in an extruder's path, in that extruder's microsteps."""
 
-    name: str
-    position: int = 0
-    travel: int = 0  # steps of free travel above home; 0 = no end (E, D)
-    has_switch: bool = True
-
-    @property
-    def switch(self) -> bool:
-        return self.has_switch and self.position <= 0
+    tip: int
+    tail: int
 
 
 @dataclass
@@ -44,10 +79,19 @@ class ThermalModel:
 class Machine:
     """Everything physical the firmware touches, besides the card, chips, flash and USB."""
 
-    axes: dict[str, Axis] = field(default_factory=lambda: {
-        "X": Axis("X", 0, 210 * 134), "Y": Axis("Y", 0, 150 * 134), "Z": Axis("Z", 0, 100 * 6400),
-        "E": Axis("E", has_switch=False), "D": Axis("D", has_switch=False),
-        "B": Axis("B", 0, 2 * 2500)})
+    x: int = 0
+    y: int = 0
+    za: int = 0
+    zb: int = 0
+    b: int = 0
+    gantry_rotation: bool = False  # ZA runs the other way (the firmware's gantry levelling)
+    filament: dict[int, Filament | None] = field(default_factory=lambda: {E: None, D: None})
+    wheel_passed: dict[int, int] = field(default_factory=lambda: {E: 0, D: 0})
+    wheel_base: dict[int, bool] = field(default_factory=lambda: {E: True, D: False})
+    wheel_slipping: dict[int, bool] = field(default_factory=lambda: {E: False, D: False})
+    stuck: dict[str, bool] = field(default_factory=dict)  # input name -> level it sticks at
+    extruded: dict[int, int] = field(default_factory=lambda: {E: 0, D: 0})  # through a nozzle
+    hand: dict[int, float] = field(default_factory=lambda: {E: 0.0, D: 0.0})  # mm still to feed
     heaters: dict[str, ThermalModel] = field(default_factory=lambda: {
         "nozzle0": ThermalModel("nozzle0", gain=253.0, tau=71.0),
         "nozzle1": ThermalModel("nozzle1", gain=253.0, tau=71.0),
@@ -57,18 +101,154 @@ class Machine:
     ambient_led: tuple[int, int, int] = (0, 0, 0)
     button_led: tuple[int, int, int] = (0, 0, 0)
     lid_closed: bool = True
+    door_locked: bool = True
     button_pressed: bool = False
     head_power: bool = True
     head_shorted: bool = False
     head_lights: bool = False
-    filament_e: bool = False  # filament at the E / D sensor
-    filament_d: bool = False
-    index_e: bool = True  # index wheel input levels
-    index_d: bool = False
-    z_top_switch: bool = False
     supply_24v: bool = True
     hardware_revision: int = 2
+    motors_on: bool = False
+
+    # ------------------------------------------------------------ motors
+    def step(self, axis: int, n: int) -> None:
+        """`n` microsteps (signed) of one of the firmware's axes."""
+        if axis == X:
+            self.x += n
+        elif axis == Y:
+            self.y += n
+        elif axis == Z:
+            self.zb += n
+            self.za += -n if self.gantry_rotation else n
+        elif axis == B:
+            self.b += n
+        else:
+            self._drive(axis, n)
+
+    def _drive(self, axis: int, n: int) -> None:
+        f = self.filament[axis]
+        if f is None or not f.tail <= 0 <= f.tip:
+            return  # nothing under the drive
+        nozzle = _steps(axis, NOZZLE_MM)
+        moved = n
+        if n > 0 and f.tip + n > nozzle:
+            if self.nozzle_hot(axis):
+                self.extruded[axis] += f.tip + n - max(f.tip, nozzle)
+                f.tail += n
+                f.tip = max(f.tip, nozzle)
+                self._turn_wheel(axis, n)
+                return
+            moved = max(0, nozzle - f.tip)  # pushed against a cold nozzle: the drive slips
+        f.tip += moved
+        f.tail += moved
+        self._turn_wheel(axis, moved)
+
+    def _turn_wheel(self, axis: int, n: int) -> None:
+        if not self.wheel_slipping[axis]:
+            self.wheel_passed[axis] += n
+
+    def nozzle_hot(self, axis: int) -> bool:
+        return max(h.temperature for name, h in self.heaters.items()
+                   if name.startswith("nozzle")) >= MELT_C
+
+    # ------------------------------------------------------------ inputs
+    def nozzle_height(self) -> float:
+        """Z microsteps of the gantry line at the carriage's X."""
+        if self.za == self.zb:
+            return self.za
+        x_mm = self.x / STEPS_PER_MM[X]
+        return self.za + (self.zb - self.za) * (x_mm - ZA_X_MM) / (ZB_X_MM - ZA_X_MM)
+
+    def filament_present(self, axis: int) -> bool:
+        f = self.filament[axis]
+        sensor = _steps(axis, SENSOR_MM)
+        return f is not None and f.tail <= sensor <= f.tip
+
+    def actuated(self, axis: int) -> bool:
+        """Whether the axis's switch (E, D: the filament sensor) is actuated."""
+        name = AXES[axis]
+        if name in self.stuck:
+            return self.stuck[name]
+        if axis == X:
+            return self.x <= 0
+        if axis == Y:
+            return self.y <= 0
+        if axis == Z:
+            return self.nozzle_height() <= 0
+        if axis == B:
+            return self.b >= 0
+        return self.filament_present(axis)
+
+    def switch_pin(self, axis: int) -> int:
+        """The input level: X/Y/Z/B switches read 1 when actuated, filament sensors 0."""
+        return int(self.actuated(axis)) ^ (axis in (E, D))
+
+    def z_top_pin(self) -> int:
+        """The Z-top input reads 0 when actuated."""
+        if "Z+" in self.stuck:
+            return int(not self.stuck["Z+"])
+        return int(self.nozzle_height() < Z_TOP_MM * STEPS_PER_MM[Z])
+
+    def index_wheel(self, axis: int) -> int:
+        return int(self.wheel_base[axis] ^ bool((self.wheel_passed[axis] // INDEX_EDGE_STEPS) & 1))
+
+    def lid_pin(self) -> int:
+        return int(self.lid_closed)
+
+    def quiet_steps(self, select: int | None) -> int:
+        """How many microsteps any motor may make before the selected switch (None: no
+        switch watched) or an index wheel can change."""
+        margin = NEVER
+        if select is not None and AXES[select] not in self.stuck:
+            margin = self._switch_margin(select)
+        for axis in (E, D):
+            f = self.filament[axis]
+            if f is not None and not self.wheel_slipping[axis]:
+                r = self.wheel_passed[axis] % INDEX_EDGE_STEPS
+                margin = min(margin, r + 1, INDEX_EDGE_STEPS - r)
+        return margin
+
+    def _switch_margin(self, axis: int) -> int:
+        if axis == X:
+            return abs(self.x) + 1
+        if axis == Y:
+            return abs(self.y) + 1
+        if axis == Z:
+            slope = abs(self.zb - self.za) / ((ZB_X_MM - ZA_X_MM) * STEPS_PER_MM[X])
+            return int(abs(self.nozzle_height()) / (1.0 + slope)) + 1
+        if axis == B:
+            return abs(self.b) + 1
+        f = self.filament[axis]
+        if f is None:
+            return NEVER
+        sensor = _steps(axis, SENSOR_MM)
+        return min(abs(f.tip - sensor), abs(f.tail - sensor)) + 1
+
+    # ------------------------------------------------------------ people
+    def insert_filament(self, axis: int, length_mm: float = 240_000.0) -> None:
+        """Filament from a reel, its tip just short of the drive."""
+        self.filament[axis] = Filament(tip=-1, tail=-1 - _steps(axis, length_mm))
+
+    def feed_by_hand(self, axis: int, mm: float) -> None:
+        """Push the filament in by hand (it turns the index wheel as it goes)."""
+        self.hand[axis] += mm
+
+    def remove_filament(self, axis: int) -> None:
+        self.filament[axis] = None
+
+    def hand_busy(self) -> bool:
+        return any(v > 0 for v in self.hand.values())
 
     def advance(self, seconds: float) -> None:
         for heater in self.heaters.values():
             heater.advance(seconds)
+        for axis, left in self.hand.items():
+            f = self.filament[axis]
+            if left <= 0 or f is None:
+                continue
+            mm = min(left, HAND_SPEED_MM_S * seconds)
+            self.hand[axis] = left - mm
+            n = _steps(axis, mm)
+            f.tip += n
+            f.tail += n
+            self._turn_wheel(axis, n)

@@ -99,8 +99,10 @@ def test_pause_parks_resume_returns_and_the_job_finishes(wire):
     line = wire.fw.job.line_number
     wire.printer.run_until(lambda: False, 60)
     assert wire.fw.job.line_number == line  # nothing runs while paused
-    z = wire.fw.position.reported_position("Z")
-    assert wire.fw.position.logical["Z"] == pytest.approx(z)  # parked: Z lifted 2 mm
+    position = wire.fw.position
+    parked_z = position.unpark_destination[2] + 2.0  # parked: Z lifted 2 mm
+    assert position.destination[2] == pytest.approx(parked_z)
+    assert float(wire.gcode(b"M114\r").split(b" ")[2][2:]) == pytest.approx(parked_z, abs=1e-3)
     wire.gcode(b"G91\rG1 Z1\rG90\r")  # jogging while paused runs from the execute buffer
     wire.ok(b"\x980")
     assert status_fields(wire.raw(b"\xb0"))["pause"] in (b"3", b"0")
@@ -168,7 +170,7 @@ def test_a_line_longer_than_512_bytes_aborts_the_job(wire):
     wire.printer.run_until(lambda: not wire.fw.job.running, 30)
     assert wire.ack(b"\xb3")[ErrorBit.GCODE_LINE_TOO_LONG] == "1"
     assert wire.fw.job.line_number == 0  # the abort that ended the job reset it
-    assert "X" not in wire.fw.position.homed  # and G1 X3 never ran (nor moved anything)
+    assert not wire.fw.position.homing_done[0]  # and G1 X3 never ran (nor moved anything)
 
 
 def test_a_stalled_job_stays_paused_and_idle_heaters_go_off_after_an_hour(wire):

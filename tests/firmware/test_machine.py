@@ -5,7 +5,6 @@ import math
 import pytest
 
 from robox.errors import PowerCut
-from robox.firmware.motion import trapezoid_time
 from robox.formats.eeprom import EepromIndex
 from robox.formats.firmware import to_sd_text, word_sum
 from robox.formats.protocol import ErrorBit
@@ -24,61 +23,7 @@ def run_lines(wire, *lines: str) -> None:
     wire.gcode(job_text(list(lines)))
     job = wire.fw.job
     assert wire.printer.run_until(lambda: not job.execute_buffer and job.current is None
-                                  and wire.fw.motion.idle(), 10000)
-
-
-def e_steps(wire) -> int:
-    return wire.printer.hw.machine.axes["E"].position
-
-
-def test_extrusion_is_volumetric_with_the_reels_diameter(wire):
-    run_lines(wire, "G1 E10 F600")
-    expected = 10 / (math.pi * 1.75**2 / 4) * 747
-    assert e_steps(wire) == round(expected)
-
-
-def test_set_filament_info_changes_diameter_and_multiplier(wire):
-    wire.ok(b"\xc8" + float8(2.85) + float8(1.2))
-    run_lines(wire, "G1 E10 F600")
-    assert e_steps(wire) == round(10 * 1.2 / (math.pi * 2.85**2 / 4) * 747)
-    wire.ok(b"\xc8" + float8(0.01) + float8(-1))  # clamped to 0.1 and 0
-    assert wire.fw.position.filament["E"] == [pytest.approx(0.1), 0.0]
-
-
-def test_thousands_of_tiny_moves_do_not_drift(wire):
-    wire.gcode(b"G92 X0 Y0 Z0\rG91\r")
-    for _ in range(40):
-        run_lines(wire, *["G1 X0.0031 E0.0007 F3000"] * 25)
-    x = wire.printer.hw.machine.axes["X"].position
-    assert x == round(1000 * 0.0031 * 133.7)
-    assert e_steps(wire) == round(1000 * 0.0007 / (math.pi * 1.75**2 / 4) * 747)
-
-
-def test_moves_are_split_into_two_millimetre_segments_and_take_their_time(wire):
-    motion = wire.fw.motion
-    run_lines(wire, "G92 X0 Y0 Z0")
-    before = motion.moved_seconds
-    run_lines(wire, "G1 X100 F6000")
-    # 50 segments of 2 mm in one straight line: one acceleration and one deceleration
-    took = motion.moved_seconds - before
-    assert took == pytest.approx(trapezoid_time(100, 0, 100, 0, 1500), rel=0.02)
-    assert wire.printer.hw.machine.axes["X"].position == round(100 * 133.7)
-
-
-def test_trapezoid_times():
-    assert trapezoid_time(100, 0, 100, 0, 1000) == pytest.approx(1.1)
-    assert trapezoid_time(1, 0, 100, 0, 1000) == pytest.approx(2 * math.sqrt(1 / 1000))
-
-
-def test_homing_runs_to_the_switches(wire):
-    run_lines(wire, "G1 X50 Y40 Z10 F6000")  # not homed yet: the move is dropped
-    assert wire.printer.hw.machine.axes["X"].position == 0
-    run_lines(wire, "G92 X0 Y0 Z0", "G1 X50 Y40 Z10 F6000")
-    assert not wire.printer.hw.machine.axes["X"].switch
-    run_lines(wire, "G28 X Y Z")
-    axes = wire.printer.hw.machine.axes
-    assert axes["X"].switch and axes["Y"].switch and axes["Z"].switch
-    assert wire.gcode(b"M114\r").startswith(b"X:0.000000 Y:0.000000 Z:0.000000")
+                                  and wire.fw.motion.empty(), 10000)
 
 
 def test_m109_and_m190_finish_in_simulated_time(wire):
@@ -100,7 +45,7 @@ def test_remaining_filament_is_booked_to_the_reel_every_7_2_s(wire):
     wire.printer.run_until(lambda: False, 8.0)
     after = eeproms.get_float(EepromIndex.REEL0, "remaining_filament")
     assert before - after == math.floor(used)
-    assert wire.fw.position.e_destination["E"] == pytest.approx(used - math.floor(used),
+    assert wire.fw.position.destination[3] == pytest.approx(used - math.floor(used),
                                                                 abs=0.01)
     wire.printer.settle()
     chip = bytes(wire.printer.hw.eeprom_bus.sockets[1].data)
@@ -133,7 +78,7 @@ def test_a_new_reel_loads_its_settings(wire):
     chip = EepromChip(chip_image(bytes(data[:192])), wire.printer.hw.clock)
     bus.insert(EepromIndex.REEL0, chip)
     wire.printer.run_until(lambda: wire.fw.eeproms.status(EepromIndex.REEL0) == 2, 2)
-    assert wire.fw.position.filament["E"][0] == pytest.approx(2.85)
+    assert wire.fw.position.diameter[0] == pytest.approx(2.85)
 
 
 # ------------------------------------------------------------ reprogramming
@@ -238,7 +183,7 @@ def test_a_tool_change_applies_the_heads_tool_offsets(wire):
     wire.ok(b"\xa0" + b"70" + b"08" + offset)  # nozzle1_x_offset in the head EEPROM
     wire.printer.settle()
     run_lines(wire, "G92 X0 Y0 Z0", "G1 X10 F3000", "T1", "G1 X10")
-    machine_x = wire.printer.hw.machine.axes["X"].position / 133.7
+    machine_x = wire.printer.hw.machine.x / 133.7
     assert machine_x == pytest.approx(12.5, abs=0.01)
     # less the tool offset: 12.5 mm is 1671 whole steps, 12.49813 mm
     reported = wire.gcode(b"M114\r")
@@ -248,7 +193,9 @@ def test_a_tool_change_applies_the_heads_tool_offsets(wire):
 
 def test_set_d_filament_info(wire):
     wire.ok(b"\xc9" + float8(2.85) + float8(0.9))
-    assert wire.fw.position.filament["D"] == [pytest.approx(2.85), pytest.approx(0.9)]
+    position = wire.fw.position
+    assert [position.diameter[1], position.multiplier[1]] == [pytest.approx(2.85),
+                                                              pytest.approx(0.9)]
 
 
 def test_a_thermistor_fault_sets_its_error_and_turns_that_heater_off(wire):

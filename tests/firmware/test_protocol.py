@@ -171,8 +171,9 @@ def test_pronterface_mode_lines_and_terminators(wire):
     assert x == pytest.approx(10.0, abs=1 / 133.7) and y == pytest.approx(5.0, abs=1 / 133.7)
     assert round(x * 133.7, 3).is_integer() and round(y * 133.7, 3).is_integer()
     assert m114.endswith(b" Z:0.000000 B:0.000000 T:0\r\nok\r\n")
+    # G28 made Z safe first (3 mm up), so the Z switch is open
     assert wire.line(b"M119\n") == \
-        b"M119 X:0 Y:0 Z:1 Z+:0 E:0 D:0 B:1 Eindex:1 Dindex:0\r\nok\r\n"
+        b"M119 X:0 Y:0 Z:0 Z+:0 E:0 D:0 B:1 Eindex:1 Dindex:0\r\nok\r\n"
     assert wire.line(b"M999\n") == b"Bdelta:0.000000\r\nok\r\n"
     assert wire.line(b"X-unknown words\n") == b"ok\r\n"
 
