@@ -35,12 +35,14 @@ _FLOAT32_MAX = 3.4028234663852886e38
 _END = re.compile(rb"[\r\n;(\0]")
 
 
+_F32 = struct.Struct("<f")
+_pack_f32, _unpack_f32 = _F32.pack, _F32.unpack
+
+
 def float32(value: float) -> float:
     """`value` rounded to C float precision (overflow gives infinity, as C does)."""
-    if math.isnan(value) or math.isinf(value):
-        return value
     try:
-        return struct.unpack("<f", struct.pack("<f", value))[0]
+        return _unpack_f32(_pack_f32(value))[0]
     except OverflowError:
         return math.copysign(math.inf, value)
 

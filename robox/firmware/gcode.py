@@ -39,7 +39,7 @@ REPORTING = {105, 111, 112, 113, 114, 115, 119, 503, 997, 999}
 class Wait:
     """What a suspended line waits for: motion, a time, a heater, or just the next pass."""
 
-    motion: bool = False
+    motion: str | None = None  # "ready": room in the motion queue; "empty": motion done
     until: float | None = None
     heater: str | None = None
 

@@ -128,11 +128,25 @@ class Firmware:
                     or self.reset_requested or not all(self.eeproms.quiet(i) for i in range(3)))
 
     def next_step(self, limit: float | None = None) -> float:
-        """How far the clock may move before the next pass."""
+        """How far the clock may move before the next pass (see `plan`)."""
+        step, passes = self.plan(limit)
+        if passes > 1:  # pragma: no cover - callers of next_step() get a single pass
+            raise AssertionError("next_step() cannot skip passes")
+        return step
+
+    def plan(self, limit: float | None = None, skip: bool = True) -> tuple[float, int]:
+        """The next pass: (step, n) moves the clock on n steps before it (n > 1 only with
+        `skip`: passes in which nothing would happen are skipped).
+
+        While motion runs the firmware spins pass by pass; when all that waits is a line
+        waiting for room in the motion queue (or for motion to end), the step interrupts
+        are run ahead to the moment that happens and the clock moves on to the first
+        pass after it, as if every pass in between had looked and found nothing."""
         if self.busy():
-            return PASS_S
+            return PASS_S, 1
         now = self.clock.now
         events = [now + IDLE_STEP_S]
+        kind = None
         for wait in (self.job.waiting, self.command.waiting):
             if wait is None:
                 continue
@@ -140,24 +154,37 @@ class Firmware:
                 events.append(wait.until)
             if wait.heater is not None:
                 events.append(now + HEATER_STEP_S)
-        motion_event = self.motion.next_event()
-        if motion_event is not None:
-            events.append(motion_event)
+            if wait.motion == "ready" or (wait.motion == "empty" and kind is None):
+                kind = wait.motion
         if self.heaters.any_on():
             events.append(now + HEATER_STEP_S)
         events += [self.hours.next_tick, self.eeproms.update_due,
                    self.heaters.conversion_started + 1.0]
-        step = min(events) - now
+        horizon = min(events)
         if limit is not None:
-            step = min(step, limit)
-        return max(PASS_S, step)
+            horizon = min(horizon, now + limit)
+        motion = self.motion
+        if not motion.empty() or self.hw.machine.hand_busy():
+            if not skip or not motion.can_run_ahead() or horizon - now < 2 * PASS_S:
+                return PASS_S, 1
+            most = int((horizon - now) / PASS_S + 1e-9)
+            when = motion.run_ahead(now + most * PASS_S, kind or "empty")
+            if when is None:
+                return PASS_S, most
+            tick, t, n = motion.tick_of(when), now, 0
+            while True:  # the first pass that sees it, the clock added up as it will be
+                t += PASS_S
+                n += 1
+                if motion.tick_of(t) >= tick or n >= most:
+                    return PASS_S, n
+        return max(PASS_S, horizon - now), 1
 
-    def run_pass(self, step: float | None = None) -> None:
+    def run_pass(self, step: float | None = None, passes: int = 1) -> None:
         """One pass of the loop after the clock moves on by `step` (default: as far as
-        nothing is missed)."""
+        nothing is missed), `passes` times over (the passes between do nothing)."""
         dt = self.next_step() if step is None else step
-        self.clock.advance(dt)
-        self.hw.machine.advance(dt)
+        self.clock.advance(dt, passes)
+        self.hw.machine.advance(dt * passes)
         self.motion.catch_up()
         self.do_everything_else()
         self.maintain_job()
@@ -186,7 +213,7 @@ class Firmware:
                 return True
             if self.clock.now >= end:
                 return False
-            self.run_pass(min(self.next_step(), max(PASS_S, end - self.clock.now)))
+            self.run_pass(*self.plan(max(PASS_S, end - self.clock.now)))
         return condition()
 
     # ------------------------------------------------------------- debug

@@ -54,7 +54,8 @@ Z_TOP_DEGLITCH = 10
 U32 = 0xFFFFFFFF
 
 NORMAL, LOADING, UNLOADING, UNTIL_SLIP = range(4)
-MOTION_WAIT = Wait(motion=True)
+READY_WAIT = Wait(motion="ready")
+EMPTY_WAIT = Wait(motion="empty")
 
 
 class Block:
@@ -99,6 +100,7 @@ class Motion:
         self.active = False
         self.last_index = [0, 0]  # the interrupt's own copy; starts unknown (0)
         self.next_tick = self._tick(fw.clock.now) + IDLE_PERIOD
+        self.last_tick = self.next_tick - IDLE_PERIOD
         self.autoload_counter = [self.machine.index_wheel(E), self.machine.index_wheel(D)]
         self.slip_error = [False, False]
         self.index_moved = [False, False]
@@ -109,6 +111,8 @@ class Motion:
     @staticmethod
     def _tick(seconds: float) -> int:
         return int(seconds * TICKS_PER_S + 0.5)
+
+    tick_of = _tick
 
     def set_acceleration(self, line) -> None:
         """M201 (and power-up): S acceleration, T allowable error (1..255); the ramp's
@@ -322,10 +326,13 @@ class Motion:
         self.buffer_in = (self.buffer_in + 1) & MASK
         while n > 0:
             prev = (b - 1) & MASK
-            self.block[prev].end_speed = self._end_speed(self.block[prev], self.block[b])
+            end_speed = self._end_speed(self.block[prev], self.block[b])
+            if end_speed == self.block[prev].end_speed:
+                break  # so every block before it would come out as it is
+            self.block[prev].end_speed = end_speed
             b = prev
             n -= 1
-        yield from wait_for(self.ready_for_more, MOTION_WAIT)
+        yield from wait_for(self.ready_for_more, READY_WAIT)
 
     def _make_motor_active(self, axis: int) -> None:
         self.machine.motors_on = True
@@ -337,45 +344,94 @@ class Motion:
         v = (min(0x00800000, nxt.length) << 1) * a
         v += (nxt.end_speed * nxt.end_speed) >> 4
         end_speed = min(nxt.speed, math.isqrt(v & U32) << 2)
-        worst = max(abs(p - q) for p, q in zip(this.inc, nxt.inc, strict=True))
+        p, q = this.inc, nxt.inc
+        worst = max(abs(p[0] - q[0]), abs(p[1] - q[1]), abs(p[2] - q[2]),
+                    abs(p[3] - q[3]), abs(p[4] - q[4]), abs(p[5] - q[5]))
         if worst > 0:
             end_speed = min(end_speed, self.max_speed_step // worst)
         return max(MIN_SPEED, min(MAX_SPEED, end_speed))
 
     def wait_until_empty(self) -> Iterator[Wait]:
-        yield from wait_for(self.empty, MOTION_WAIT)
+        yield from wait_for(self.empty, EMPTY_WAIT)
 
     # ------------------------------------------------------- the interrupt
     def catch_up(self) -> None:
         """Run every step interrupt due by now."""
         limit = self._tick(self.fw.clock.now)
-        if self.next_tick > limit:
-            return
-        m = self.machine
-        pa = self.pa
         while self.next_tick <= limit:
-            if not self.active:
-                if self.buffer_in != self.buffer_out:
-                    if self.block[self.buffer_out].length:
-                        self.active = True
-                        for i in range(6):
-                            self.acc[i] = (self.acc[i] & 0xFFFF0000) | 0x8000
-                    else:  # never queued by the firmware; skipped as it would be
-                        self.buffer_out = (self.buffer_out + 1) & MASK
-                if not self.active:  # idle: every interrupt until `limit` is the same
-                    self.speed_x4k = MIN_SPEED << 12
-                    self._check_index_wheels()
-                    self.timer_period = IDLE_PERIOD
-                    n = (limit - self.next_tick) // IDLE_PERIOD + 1
-                    self.next_tick += n * IDLE_PERIOD
-                    self.interrupts += n
-                    continue
-            blk = self.block[self.buffer_out]
-            k = self._run_length(blk, limit, m, pa)
-            if k > 1:
-                self._batch(blk, k, m)
-            else:
-                self._interrupt(blk, m, pa)
+            self._advance(limit, None)
+
+    def can_run_ahead(self) -> bool:
+        """Whether the loop may skip passes while motion runs: nothing the foreground
+        watches pass by pass can change (no filament whose slip is counted, the Z-top
+        switch open)."""
+        m = self.machine
+        return (m.filament[E] is None and m.filament[D] is None and m.z_top_pin()
+                and not m.hand_busy())
+
+    def run_ahead(self, until: float, kind: str) -> float | None:
+        """Run the interrupts due by `until`, stopping after the one that leaves the queue
+        ready for more (`kind` "ready") or empty ("empty"); returns when that was (now,
+        if it already is), or None if it did not happen by `until`."""
+        limit = self._tick(until)
+        last = self.fw.clock.now
+        while True:
+            cap = self._counts_until_ready() if kind == "ready" else \
+                (0 if self.empty() else None)
+            if cap == 0:
+                return last
+            if self.next_tick > limit or not self.machine.z_top_pin():
+                return None
+            self._advance(limit, cap)
+            last = self.last_tick / TICKS_PER_S
+
+    def _counts_until_ready(self) -> int | None:
+        """How many more counted interrupts until ready_for_more() holds (0: it does);
+        None when it needs a block to end first."""
+        n = self.queued()
+        if n >= BUFFER_SIZE - 1:
+            return None
+        if n == 0:
+            return 0
+        b = self.buffer_out
+        length = 0
+        for _ in range(n):
+            length += self.block[b].length
+            b = (b + 1) & MASK
+        speed = self.block[(self.buffer_in - 1) & MASK].speed
+        v = (((speed // self.pa["acceleration"] + MARGIN_UNITS) * speed) & U32) >> 5
+        return 0 if length < v else length - v + 1
+
+    def _advance(self, limit: int, cap: int | None) -> None:
+        """One interrupt, or a run of them, not past `limit` nor past `cap` counted
+        interrupts (None: no cap)."""
+        if not self.active:
+            if self.buffer_in != self.buffer_out:
+                if self.block[self.buffer_out].length:
+                    self.active = True
+                    acc = self.acc
+                    for i in range(6):
+                        acc[i] = (acc[i] & 0xFFFF0000) | 0x8000
+                else:  # never queued by the firmware; skipped as it would be
+                    self.buffer_out = (self.buffer_out + 1) & MASK
+            if not self.active:  # idle: every interrupt until `limit` is the same
+                self.speed_x4k = MIN_SPEED << 12
+                self._check_index_wheels()
+                self.timer_period = IDLE_PERIOD
+                n = (limit - self.next_tick) // IDLE_PERIOD + 1
+                self.last_tick = self.next_tick + (n - 1) * IDLE_PERIOD
+                self.next_tick += n * IDLE_PERIOD
+                self.interrupts += n
+                return
+        blk = self.block[self.buffer_out]
+        m = self.machine
+        k = self._run_length(blk, limit, m, cap)
+        if k > 1:
+            self._batch(blk, k, m)
+        elif self.switch_abandon_counter == 0 and m.quiet_steps(None) >= (1 << 59):
+            self._singles(blk, limit, cap)
+        else:
+            self._interrupt(blk, m)
 
     def _check_index_wheels(self) -> None:
         m = self.machine
@@ -394,7 +450,8 @@ class Motion:
             return True
         return self.machine.switch_pin(self.switch_select) != self.switch_invert
 
-    def _interrupt(self, blk: Block, m, pa) -> None:
+    def _interrupt(self, blk: Block, m) -> None:
+        """One step interrupt, as TC0_IrqHandler does it with a block under way."""
         self._check_index_wheels()
         acc = self.acc
         inc = blk.inc
@@ -403,7 +460,7 @@ class Motion:
             acc[i] = (v + inc[i]) & U32
             if (v ^ acc[i]) & 0xFFFF0000:
                 m.step(i, 1 if inc[i] > 0 else -1)
-        a = pa["acceleration"]
+        a = self.pa["acceleration"]
         v = math.isqrt(((min(0x00800000, blk.length - 1) << 1) * a
                         + ((blk.end_speed * blk.end_speed) >> 4)) & U32)
         s = self.speed_x4k + min(self.timer_period, self.max_period_for_ramping) * a
@@ -415,13 +472,71 @@ class Motion:
             self.buffer_out = (self.buffer_out + 1) & MASK
             self.active = False
         self.timer_period = ((0x10000 << 12) // self.speed_x4k) & 0xFFFF
+        self.last_tick = self.next_tick
         self.next_tick += self.timer_period
         self.interrupts += 1
 
-    def _run_length(self, blk: Block, limit: int, m, pa) -> int:
-        """How many interrupts from now can be done at once (0 or 1: one at a time)."""
+    def _singles(self, blk: Block, limit: int, cap: int | None) -> None:
+        """Interrupts one at a time while the speed ramps, the same arithmetic as
+        `_interrupt` in a tight loop, for a block that watches no switch and turns no
+        index wheel; stops once the speed holds for an interrupt (a run may follow), at
+        the block's end, at `limit` or after `cap` interrupts."""
+        acc = self.acc
+        inc = blk.inc
+        movers = [(i, inc[i], 1 if inc[i] > 0 else -1) for i in blk.movers]
+        step = self.machine.step
+        a = self.pa["acceleration"]
+        c = (blk.end_speed * blk.end_speed) >> 4
+        top = blk.speed << 12
+        maxp = self.max_period_for_ramping
+        floor_speed = MIN_SPEED << 12
         s = self.speed_x4k
-        a = pa["acceleration"]
+        period = self.timer_period
+        tick = self.next_tick
+        length = blk.length
+        count = 0
+        cap = length if cap is None else min(cap, length)
+        while True:
+            for i, d, sign in movers:
+                v = acc[i]
+                w = (v + d) & U32
+                acc[i] = w
+                if (v ^ w) & 0xFFFF0000:
+                    step(i, sign)
+            length -= 1
+            v = math.isqrt((((length if length < 0x00800000 else 0x00800000) << 1) * a
+                            + c) & U32) << 14
+            n = s + (period if period < maxp else maxp) * a
+            if v < n:
+                n = v
+            if top < n:
+                n = top
+            if n < floor_speed:
+                n = floor_speed
+            settled = n == s
+            s = n
+            period = ((0x10000 << 12) // s) & 0xFFFF
+            last = tick
+            tick += period
+            count += 1
+            if settled or count >= cap or tick > limit:
+                break
+        blk.length = length
+        self.speed_x4k = s
+        self.timer_period = period
+        self.last_tick = last
+        self.next_tick = tick
+        self.interrupts += count
+        if length == 0:
+            self.buffer_out = (self.buffer_out + 1) & MASK
+            self.active = False
+
+    def _run_length(self, blk: Block, limit: int, m, cap: int | None) -> int:
+        """How many interrupts from now can be done at once (1: one at a time): the speed
+        must stay exactly where it is for every one of them, no input the interrupt
+        reads may change, the block may not end and `cap` counted ones are the most."""
+        s = self.speed_x4k
+        a = self.pa["acceleration"]
         c = (blk.end_speed * blk.end_speed) >> 4
         counting = (self.fw.job.abort_flag or self.switch_abandon_counter == 0
                     or (self.slip_select and self.filament_slip))
@@ -431,12 +546,8 @@ class Motion:
         length = blk.length
         if length <= 1:
             return 1
-        # the speed must stay exactly where it is for every interrupt of the run
-        def cap(rem: int) -> int:
-            v = math.isqrt(((min(0x00800000, rem) << 1) * a + c) & U32)
-            return min(v << 14, blk.speed << 12)
-        first = max(MIN_SPEED << 12, cap(length - 1))
-        if first != s:
+        v = math.isqrt(((min(0x00800000, length - 1) << 1) * a + c) & U32)
+        if max(MIN_SPEED << 12, min(v << 14, blk.speed << 12)) != s:
             return 1
         if counting:
             if s == MIN_SPEED << 12:
@@ -445,14 +556,15 @@ class Motion:
                 need = -(-s // 16384)  # v must stay at least this
                 rem_min = max(0, -(-(need * need - c) // (2 * a)))
                 k = min(length - 1, length - rem_min)
+            if cap is not None:
+                k = min(k, cap)
         else:
             k = 1 << 40  # the length is not counted down: the speed cannot change
         if k < 2:
             return 1
         if watching:
             k = min(k, self.switch_abandon_counter)
-        period = self.timer_period
-        k = min(k, (limit - self.next_tick) // period + 1)
+        k = min(k, (limit - self.next_tick) // self.timer_period + 1)
         biggest = max(abs(blk.inc[i]) for i in blk.movers)
         quiet = m.quiet_steps(self.switch_select if watching else None)
         if quiet < (1 << 59):
@@ -474,6 +586,7 @@ class Motion:
             if (self.slip_select and self.filament_slip) or \
                     m.switch_pin(self.switch_select) != self.switch_invert:
                 blk.length -= k
+        self.last_tick = self.next_tick + (k - 1) * self.timer_period
         self.next_tick += k * self.timer_period
         self.interrupts += k
 

@@ -118,8 +118,8 @@ class VirtualPrinter:
         return self.hw.usb
 
     # ------------------------------------------------------------ running
-    def run_pass(self, step: float | None = None) -> None:
-        self.firmware.run_pass(step)
+    def run_pass(self, step: float | None = None, passes: int = 1) -> None:
+        self.firmware.run_pass(step, passes)
         self.save_chips()
 
     #: How run_until() looks by default: only between passes of the foreground loop (as the

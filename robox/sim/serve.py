@@ -102,14 +102,18 @@ class PtyServer:
                 fw.clock.now + FAST_SLICE_S, turn)
             while passes < 2000 and (self._work_pending() or passes == 0) and \
                     fw.clock.now < until:
-                self.printer.run_pass(min(fw.next_step(), max(PASS_S, until - fw.clock.now)))
+                self.printer.run_pass(*fw.plan(max(PASS_S, until - fw.clock.now)))
                 passes += 1
                 if self.printer.usb.reply_waiting:
                     break
         else:
             target = self._sim_start + (time.monotonic() - self._wall_start) * self.speed
             while fw.clock.now < target:
-                self.printer.run_pass(min(fw.next_step(), max(0.0, target - fw.clock.now)))
+                remaining = max(0.0, target - fw.clock.now)
+                if remaining >= PASS_S:
+                    self.printer.run_pass(*fw.plan(remaining))
+                else:
+                    self.printer.run_pass(remaining)
                 if self.printer.usb.reply_waiting:
                     self._pump_output()
         self._pump_output()
