@@ -76,8 +76,10 @@ def test_a_pause_the_user_made_is_left_alone_and_reported(virtual):
 
 
 def test_send_job_wait_over_a_pty_prints_a_job_that_catches_up(tmp_path):
+    # long lines (a dozen to a chunk) that run at once: the served printer runs a line a
+    # pass, so it outruns an upload that carries so few lines per round trip on any host
     path = tmp_path / "fast.gcode"
-    path.write_bytes(job_text([f"M106 S{i % 250}" for i in range(3000)]))
+    path.write_bytes(job_text([f"M106 S{i % 250}.{'0' * 36}" for i in range(3000)]))
     with serving.served(tmp_path / "printer") as pty:
         result = CliRunner().invoke(cli, ["--device", f"serial:{pty}", "send-job", str(path),
                                           "--wait", "--json"], catch_exceptions=False)
