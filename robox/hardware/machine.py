@@ -21,7 +21,8 @@ point:
 
 Faults: a switch stuck at a level (`stuck`), a wheel that does not turn
 (`wheel_slipping`), filament that runs out (a short `tail`), a hand feeding
-filament in (`feed_by_hand`, what starts an automatic load).
+filament in (`feed_by_hand`, what starts an automatic load). The door's latch
+opens when the carriage goes beyond Y's travel.
 
 The motion object moves motors with `step(axis, n)`; `quiet_steps(select)`
 bounds how far any motor may move before an input the step interrupt reads
@@ -43,6 +44,7 @@ SENSOR_MM = 10.0  # filament sensor after the drive
 NOZZLE_MM = 380.0  # drive to nozzle, through the Bowden tube
 MELT_C = 150.0
 HAND_SPEED_MM_S = 20.0
+DOOR_UNLOCK_Y_MM = 158.0
 NEVER = 1 << 60
 
 
@@ -60,19 +62,46 @@ class Filament:
 
 @dataclass
 class ThermalModel:
-    """dT/dt = (gain * duty - (T - ambient)) / tau, integrated exactly for constant duty."""
+    """A heated mass and the thermistor that reads it.
+
+    The mass: d(core)/dt = (gain * duty - (core - ambient)) / tau. The thermistor lags
+    the mass: d(T)/dt = (core - T) / lag. Both are integrated exactly for a constant duty.
+    The lag is what lets the firmware's PID settle: its derivative term (kd 0.55 per
+    degree a second on a nozzle) over a plant that answered a duty change within the
+    same one-second sample would flip the heater fully on and off every sample and hold
+    the nozzle a few degrees off its target, which no real hot end does."""
 
     name: str
     gain: float  # degrees above ambient at full power
     tau: float  # seconds
+    lag: float = 0.0  # seconds; 0: the thermistor reads the mass itself
     ambient: float = 20.0
-    temperature: float = 20.0
+    core: float = 20.0
+    sensed: float = 20.0
     duty: float = 0.0  # 0..1
     thermistor_ok: bool = True
 
+    @property
+    def temperature(self) -> float:
+        """What the thermistor reads."""
+        return self.sensed
+
+    @temperature.setter
+    def temperature(self, value: float) -> None:
+        """The mass and its thermistor both at `value` (settled)."""
+        self.core = self.sensed = value
+
     def advance(self, seconds: float) -> None:
         target = self.ambient + self.gain * self.duty
-        self.temperature = target + (self.temperature - target) * math.exp(-seconds / self.tau)
+        core = self.core - target
+        fall = math.exp(-seconds / self.tau)
+        self.core = target + core * fall
+        if self.lag <= 0.0:
+            self.sensed = self.core
+            return
+        follow = core * self.tau / (self.tau - self.lag)
+        self.sensed = target + follow * fall + \
+            (self.sensed - target - follow) * math.exp(-seconds / self.lag)
 
 
 @dataclass
@@ -93,15 +122,14 @@ class Machine:
     extruded: dict[int, int] = field(default_factory=lambda: {E: 0, D: 0})  # through a nozzle
     hand: dict[int, float] = field(default_factory=lambda: {E: 0.0, D: 0.0})  # mm still to feed
     heaters: dict[str, ThermalModel] = field(default_factory=lambda: {
-        "nozzle0": ThermalModel("nozzle0", gain=253.0, tau=71.0),
-        "nozzle1": ThermalModel("nozzle1", gain=253.0, tau=71.0),
+        "nozzle0": ThermalModel("nozzle0", gain=253.0, tau=71.0, lag=2.0),
+        "nozzle1": ThermalModel("nozzle1", gain=253.0, tau=71.0, lag=2.0),
         "bed": ThermalModel("bed", gain=150.0, tau=280.0),
         "ambient": ThermalModel("ambient", gain=40.0, tau=600.0)})
     head_fan: float = 0.0
     ambient_led: tuple[int, int, int] = (0, 0, 0)
     button_led: tuple[int, int, int] = (0, 0, 0)
     lid_closed: bool = True
-    door_locked: bool = True
     button_pressed: bool = False
     head_power: bool = True
     head_shorted: bool = False
@@ -225,9 +253,21 @@ class Machine:
         return min(abs(f.tip - sensor), abs(f.tail - sensor)) + 1
 
     # ------------------------------------------------------------ people
-    def insert_filament(self, axis: int, length_mm: float = 240_000.0) -> None:
-        """Filament from a reel, its tip just short of the drive."""
-        self.filament[axis] = Filament(tip=-1, tail=-1 - _steps(axis, length_mm))
+    def insert_filament(self, axis: int, length_mm: float = 240_000.0,
+                        tip_mm: float = 0.0) -> None:
+        """Filament from a reel, its tip `tip_mm` along the path (0: at the drive)."""
+        tip = _steps(axis, tip_mm)
+        self.filament[axis] = Filament(tip=tip, tail=tip - _steps(axis, length_mm))
+
+    def nozzle_steps(self, axis: int) -> int:
+        return _steps(axis, NOZZLE_MM)
+
+    def sensor_steps(self, axis: int) -> int:
+        return _steps(axis, SENSOR_MM)
+
+    def door_unlocked(self) -> bool:
+        """The door's latch is released by the carriage beyond Y's travel (G37)."""
+        return self.y >= DOOR_UNLOCK_Y_MM * STEPS_PER_MM[Y]
 
     def feed_by_hand(self, axis: int, mm: float) -> None:
         """Push the filament in by hand (it turns the index wheel as it goes)."""

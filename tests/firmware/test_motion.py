@@ -1,0 +1,385 @@
+"""Motion and mechanics: each test pins a behaviour of the firmware's motion.c or
+position.c (named in its docstring); the step counts, interrupt times and float32
+results are worked out here, independently of the model's code."""
+
+import math
+import struct
+
+import pytest
+
+from robox.firmware import motion as motion_module
+from robox.formats.protocol import ErrorBit
+from robox.hardware.machine import E
+from tests.firmware.wire import job_text
+
+SPU = {"X": 133.7, "Y": 133.7, "Z": 6400.0, "E": 747.0, "B": 2500.0}
+
+
+def f32(value: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", value))[0]
+
+
+@pytest.fixture
+def wire(wire):
+    wire.clear()
+    return wire
+
+
+def settle(wire, timeout: float = 3000.0) -> None:
+    job = wire.fw.job
+    assert wire.printer.run_until(lambda: not job.execute_buffer and job.current is None
+                                  and wire.fw.motion.empty(), timeout)
+
+
+def run(wire, *lines: str, timeout: float = 3000.0) -> None:
+    wire.gcode(job_text(list(lines)))
+    settle(wire, timeout)
+
+
+def naive_block(length: int, speed: int, acceleration: int, period: int = 32768,
+                s: int = 2 << 12) -> list[int]:
+    """The step interrupt's periods for one block from rest to rest, one interrupt at
+    a time (TC0_IrqHandler's ramp with end speed 0)."""
+    max_period = 0x10000 // math.isqrt(acceleration << 3)
+    periods = []
+    while length:
+        v = math.isqrt(2 * (length - 1) * acceleration)
+        s = max(2 << 12, min(v << 14, s + min(period, max_period) * acceleration,
+                             speed << 12))
+        length -= 1
+        period = (0x10000 << 12) // s
+        periods.append(period)
+    return periods
+
+
+@pytest.mark.parametrize("acceleration", [4, 9])
+def test_a_block_takes_the_time_the_interrupts_ramp_gives(wire, acceleration):
+    """add_block_to_buffer's length and speed, TC0_IrqHandler's ramp (M201 S)."""
+    run(wire, f"M201 S{acceleration}")
+    motion = wire.fw.motion
+    moves = [1.5, 0.0, 0.0, 0.0, 0.0, 0.0]
+    queued = motion.add_block(10.0, motion_module.FLT_MAX, False, moves)
+    next(queued)  # queued; the foreground now waits for room
+    length = math.floor(f32(1.5 * f32(133.7)) + 0.5)
+    min_duration = max(f32(1.5 / f32(200.0)), f32(1.5 / 10.0))  # the feed rate rules
+    speed = int(length / (96e6 / (65536 * 32) * min_duration))
+    assert (length, motion.block[motion.buffer_out].speed) == (201, speed) == (201, 29)
+    start = motion.next_tick  # the idle interrupt that picks the block up
+    before = wire.printer.hw.machine.x
+    assert wire.printer.run_until(motion.empty, 5)
+    periods = naive_block(201, 29, acceleration)
+    assert motion.last_tick == start + sum(periods[:-1])
+    assert wire.printer.hw.machine.x - before == 201
+
+
+def scripted_session(wire) -> list[bytes]:
+    wire.ok(b"\xa0" + b"58" + b"08" + b"0.650000")
+    wire.ok(b"\xa0" + b"88" + b"08" + b"-0.70000")
+    out = []
+    for text in ("G28 X Y Z", "G1 X50 Y20 F6000", "G1 X52 Y21 Z0.3 F1200", "T1",
+                 "G0 B1", "G1 X10 Y30 B0.5 F3000", "G91", "G1 X-3 Y2 F600", "G90", "T0",
+                 "G4 P120", "G1 X100 Y100 Z5 F12000", "M201 S7", "G1 X1 Y1 F9000"):
+        wire.gcode(job_text([text]))
+        for _ in range(3):
+            wire.printer.run_until(lambda: False, 0.137)
+            out.append(wire.gcode(b"M114\r"))
+            out.append(wire.raw(b"\xb0"))
+    settle(wire)
+    m = wire.printer.hw.machine
+    out.append(repr((m.x, m.y, m.za, m.zb, m.b, wire.fw.motion.interrupts,
+                     wire.fw.motion.last_tick, wire.fw.clock.now)).encode())
+    return out
+
+
+def fresh_wire():
+    from tests.firmware.wire import Wire
+    w = Wire()
+    w.printer.run_until(lambda: False, 2.0)
+    w.clear()
+    return w
+
+
+def test_runs_of_interrupts_and_skipped_passes_change_nothing(monkeypatch):
+    """The model's fast paths (runs of identical interrupts, the tight ramp loop, passes
+    skipped while only motion is awaited) give what one interrupt per call and one
+    pass per millisecond give: every reply, position, interrupt count and tick."""
+    fast = scripted_session(fresh_wire())
+    slow_wire = fresh_wire()
+    motion = slow_wire.fw.motion
+    monkeypatch.setattr(motion, "can_run_ahead", lambda: False)
+    monkeypatch.setattr(motion, "_run_length", lambda *a: 1)
+    monkeypatch.setattr(motion, "_singles", lambda blk, limit, cap: motion._interrupt(
+        blk, motion.machine))
+    slow = scripted_session(slow_wire)
+    assert len(fast) == 85 and fast == slow
+
+
+BACK_OFF = math.floor(f32(0.75 * f32(133.7)) + 0.5)  # 100 steps off a closed switch
+
+
+def expected_x_home(start_steps: int, travel: float = 226.0) -> tuple[int, float]:
+    """G28 X with the switch open: run until it trips, then 0.5 mm (67 steps) counted
+    from the step that trips it (so it ends 66 steps past); the distance is the
+    abandon distance less what is left of it (home_axis)."""
+    length = math.floor(f32(-0.5 * f32(133.7)) + 0.5)  # -67
+    interrupts = start_steps + (-length - 1)
+    counter = int(f32(f32(1.5 * travel) * f32(133.7))) - interrupts
+    v = f32(f32(1.5 * travel) - f32(f32(counter) / f32(133.7)))
+    return length + 1, v
+
+
+def x_after_g1(start: float, x: float, spu: float = 133.7) -> float:
+    """Where position.c books X after `G1 X` from `start` with no tool offset: the move
+    goes in 2 mm segments, each queues whole steps, and add_block_to_buffer rewrites
+    each segment as the distance its steps make, which the position adds up in float."""
+    distance = f32(abs(x - start))
+    segments = 1 + int(distance / 2.0)
+    part = f32(f32(x - start) / f32(segments))
+    dest = pos = start
+    for _ in range(segments):
+        dest = f32(dest + part)
+        steps = math.floor(f32(f32(dest - pos) * f32(spu)) + 0.5)
+        pos = f32(pos + f32(steps / f32(spu)))
+    return pos
+
+
+def test_homing_runs_to_the_switch_and_past_it_by_the_home_distance(wire):
+    """home_axis: back off 1.5 x 0.5 mm when the switch is already closed, then run
+    towards it until it trips and 0.5 mm more; M111 shows the distance to the switch."""
+    run(wire, "G28 X")
+    m = wire.printer.hw.machine
+    end, v = expected_x_home(BACK_OFF)
+    assert (BACK_OFF, m.x, m.za, m.zb) == (100, end, 3 * 6400, 3 * 6400)  # Z made safe
+    moved = f32(0.75 - v)
+    assert wire.gcode(b"M111\r") == f"Xdelta:{moved:f}\r\nok\r\n".encode()
+    assert wire.gcode(b"M119\r").startswith(b"M119 X:1 Y:1 Z:0 Z+:0")
+    run(wire, "G1 X20 F6000")
+    start = m.x
+    assert start == -66 + round(20 * 133.7)
+    run(wire, "G28 X")
+    end, v = expected_x_home(start)
+    assert m.x == end
+    position = f32(x_after_g1(0.0, 20.0) - v)  # home_delta: where it was, less the run
+    assert wire.gcode(b"M111\r") == f"Xdelta:{position:f}\r\nok\r\n".encode()
+
+
+def test_tool_changes_run_the_valve_to_its_switch_and_past_by_the_heads_offset(wire):
+    """select_nozzle and do_tool_change: back off a quarter of the offset when the wanted
+    side is already selected, run to the switch and on by the offset (0xa0 writes the
+    head's B offsets at 0x58 and 0x88, as AutoMaker does)."""
+    wire.ok(b"\xa0" + b"58" + b"08" + b"0.650000")
+    wire.ok(b"\xa0" + b"88" + b"08" + b"-0.70000")
+    wire.printer.settle()
+    m = wire.printer.hw.machine
+    run(wire, "T0")
+    back = math.floor(f32(f32(-0.25 * f32(0.65)) * 2500.0) + 0.5)  # -406
+    on = math.floor(f32(f32(0.65) * 2500.0) + 0.5)  # 1625, counted from the trip step
+    assert m.b == back + (-back) + on - 1 == 1624
+    run(wire, "G0 B1")
+    assert m.b == 1624 + 2500
+    assert wire.gcode(b"M114\r") == b"X:0.000000 Y:0.000000 Z:0.000000 B:1.000000 T:0\r\nok\r\n"
+    run(wire, "T1")
+    distance = f32(-1.0 + f32(-0.7))
+    steps = math.floor(f32(distance * 2500.0) + 0.5)  # -4250
+    interrupts = (1624 + 2500 + 1) + (-steps - 1)
+    assert m.b == 1624 + 2500 - interrupts == -4250
+    assert wire.gcode(b"M114\r").endswith(b"B:1.000000 T:1\r\nok\r\n")
+    counter = int(f32(7.0 * 2500.0)) - interrupts
+    measured = f32(f32(7.0 - f32(f32(counter) / 2500.0)) - f32(-steps / 2500.0))
+    delta = f32(measured - f32(1.0 + f32(0.65)))
+    assert wire.gcode(b"M999\r") == f"Bdelta:{delta:f}\r\nok\r\n".encode()
+    assert set(wire.ack(b"\xb3")) == {"0"}  # within B_POSITION_WARNING_TOLERANCE
+
+
+def test_a_valve_switch_that_never_opens_is_b_position_lost_then_b_stuck(wire):
+    """select_nozzle's retries at half speed each; the last one enables the nozzle
+    forcing work-around and B_POSITION_LOST, running out of them B_STUCK."""
+    wire.printer.hw.machine.stuck["B"] = True
+    run(wire, "T1", timeout=600)
+    errors = wire.ack(b"\xb3")
+    assert errors[ErrorBit.B_POSITION_LOST] == "1" and errors[ErrorBit.B_STUCK] == "1"
+    assert wire.fw.heaters.nozzle_forcing
+
+
+def test_a_z_top_switch_closing_below_its_height_is_an_error(wire):
+    """monitor_z_top_switch: ten passes of the Z-top input closed while a block that stays
+    below M533's height runs."""
+    run(wire, "G92 X0 Y0 Z0")
+    wire.printer.hw.machine.stuck["Z+"] = True
+    run(wire, "G1 Z5 F600")
+    assert wire.ack(b"\xb3")[ErrorBit.Z_TOP_SWITCH] == "1"
+    assert b"Z+:1" in wire.gcode(b"M119\r")
+
+
+def level_after_homes(wire, tilt_mm: float) -> None:
+    m = wire.printer.hw.machine
+    m.zb = round(tilt_mm * 6400)
+    run(wire, "G28 X Y", "G1 X20 F6000", "G28 Z", "G1 X200 F6000", "G28 Z", "G38")
+
+
+def test_g38_levels_a_tilted_gantry_from_two_z_homes(wire):
+    """level_gantry: the Z difference of the last two homes, scaled to the leadscrews,
+    turns the gantry (ZA against ZB)."""
+    level_after_homes(wire, 2.0)
+    m = wire.printer.hw.machine
+    assert abs(m.za - m.zb) <= 0.02 * 6400
+    assert wire.ack(b"\xb3")[ErrorBit.MAX_GANTRY_ADJUSTMENT] == "0"
+
+
+def test_g38_clamps_the_adjustment_at_ten_millimetres(wire):
+    level_after_homes(wire, 15.0)
+    m = wire.printer.hw.machine
+    assert wire.ack(b"\xb3")[ErrorBit.MAX_GANTRY_ADJUSTMENT] == "1"
+    assert abs(m.za - m.zb) == pytest.approx(5.0 * 6400, abs=0.05 * 6400)
+
+
+def test_g37_homes_y_and_drives_past_its_travel_to_unlock_the_door(wire):
+    """unlock_cover with S: Y homed first, then to M532's 161.5 mm."""
+    m = wire.printer.hw.machine
+    assert not m.door_unlocked()
+    run(wire, "G37 S")
+    home_end, _ = expected_x_home(BACK_OFF, 155.0)  # Y homes as X does
+    unlock = math.floor(f32(f32(161.5) * f32(133.7)) + 0.5)
+    assert (home_end, m.y) == (-66, home_end + unlock)
+    assert m.door_unlocked()
+
+
+def test_g36_pushes_against_a_cold_nozzle_until_the_filament_slips(wire):
+    """move_filament_until_slip: the wheel stops turning at the nozzle and the upper bits
+    of the step accumulator pass M909 T (4 mm) of steps: the run ends 5 mm later."""
+    m = wire.printer.hw.machine
+    m.insert_filament(E, tip_mm=370.0)
+    run(wire, "G36 E40 F600")
+    assert m.filament[E].tip == m.nozzle_steps(E)
+    assert wire.fw.motion.filament_slip
+    assert set(wire.ack(b"\xb3")) == {"0"}  # slip was expected: no error
+
+
+def test_g36_through_a_hot_nozzle_runs_its_whole_distance(wire):
+    m = wire.printer.hw.machine
+    m.heaters["nozzle0"].temperature = 200.0
+    m.insert_filament(E, tip_mm=370.0)
+    run(wire, "G36 E20 F600")
+    assert not wire.fw.motion.filament_slip
+    extruded = 20 * 747 + 5 * 747 - 10 * 747  # abandon 20 mm, 5 mm over, 10 mm to go
+    assert m.extruded[E] == pytest.approx(extruded, abs=3)
+
+
+def poll_busy(wire, done) -> set[bytes]:
+    seen = set()
+    while not done():
+        seen.add(wire.raw(b"\xb0")[26:27])
+        wire.printer.run_until(lambda: False, 0.5)
+    return seen
+
+
+def test_m120_loads_in_stages_and_reports_loading(wire):
+    """do_filament_load: grab to the sensor and 5 mm on, carriage to M531's X, load 340 mm
+    plus 5, then on until the filament slips at the nozzle; status byte 26 is '2'."""
+    m = wire.printer.hw.machine
+    m.insert_filament(E)
+    wire.gcode(b"M120 E\r")
+    seen = poll_busy(wire, lambda: wire.fw.motion.empty() and wire.fw.job.current is None
+                     and not wire.fw.job.execute_buffer)
+    assert b"2" in seen
+    assert m.filament[E].tip == m.nozzle_steps(E)
+    assert m.x == pytest.approx(190 * 133.7 - 66, abs=2)
+    assert wire.raw(b"\xb0")[26:27] == b"0"
+
+
+def test_m121_brings_the_nozzle_to_unload_temperature_then_retracts(wire):
+    """do_filament_unload: carriage to the load X, the nozzle held at 140 C for 5 s, then
+    the filament out until the sensor opens and 35 mm more; status byte 26 is '3'."""
+    m = wire.printer.hw.machine
+    m.insert_filament(E, tip_mm=380.0)
+    start = wire.fw.clock.now
+    wire.gcode(b"M121 E\r")
+    seen = poll_busy(wire, lambda: wire.fw.motion.empty() and wire.fw.job.current is None
+                     and not wire.fw.job.execute_buffer)
+    assert b"3" in seen
+    assert wire.fw.clock.now - start > 5
+    assert not m.filament_present(E)
+    assert m.filament[E].tip < 0  # out past the drive, which lets go of it
+    assert wire.fw.heaters.nozzle[0].mode == 0
+
+
+def test_filament_fed_by_hand_starts_a_load(wire):
+    """monitor_index_wheels: eight index-wheel edges with no filament at the sensor and
+    the motion queue empty queue M120."""
+    m = wire.printer.hw.machine
+    wire.printer.run_until(lambda: False, 4.5)  # not within 4 s of an unload (or power-up)
+    m.insert_filament(E, tip_mm=-5.0)
+    m.feed_by_hand(E, 8.0)
+    wire.printer.run_until(lambda: wire.fw.position.what != 0, 10)
+    assert wire.raw(b"\xb0")[26:27] == b"2"
+    settle(wire)
+    assert m.filament[E].tip == m.nozzle_steps(E)
+
+
+def test_a_wheel_that_stops_turning_while_printing_parks_and_reports_no_filament(wire):
+    """the_boss's slip handling: park, back off 8.3 mm; the wheel still does not turn,
+    so the filament has run out: paused, E_NO_FILAMENT, M121 E queued."""
+    m = wire.printer.hw.machine
+    m.insert_filament(E, tip_mm=380.0)
+    m.heaters["nozzle0"].temperature = 210.0
+    m.wheel_slipping[E] = True
+    lines = ["G92 X0 Y0 Z0"] + [f"G1 X{10 + i % 2} E2 F600" for i in range(80)]
+    wire.upload("slips", job_text(lines))
+    wire.ok(b"\x94" + b"slips".ljust(16, b"\0"))
+    assert wire.printer.run_until(lambda: wire.fw.errors.is_set(ErrorBit.E_NO_FILAMENT), 300)
+    assert wire.fw.job.pause == 1 and wire.fw.job.parked
+
+
+def test_the_reel_is_charged_the_whole_millimetres_the_job_extruded(wire):
+    """update_reel_filament_length every 7.2 s: floor of the E destination, per reel."""
+    from robox.formats.eeprom import EepromIndex
+    eeproms = wire.fw.eeproms
+    before = eeproms.get_float(EepromIndex.REEL0, "remaining_filament")
+    volumes = [0.37 + 0.011 * i for i in range(300)]
+    lines = ["G92 X0 Y0 Z0"] + [f"G1 X{(i % 10) * 2} E{v:.4f} F3000"
+                               for i, v in enumerate(volumes)]
+    wire.upload("charged", job_text(lines))
+    wire.ok(b"\x94" + b"charged".ljust(16, b"\0"))
+    wire.wait_job_done()
+    wire.printer.run_until(lambda: False, 8.0)
+    area = f32(f32(1.75 * 1.75) * math.pi / 4.0)
+    total = sum(volumes) / area
+    after = eeproms.get_float(EepromIndex.REEL0, "remaining_filament")
+    assert before - after == pytest.approx(math.floor(total), abs=1)
+    assert 0 <= wire.fw.position.destination[3] < 1
+
+
+MACROS = {
+    "home all": ["G28 X Y Z", "M114"],
+    "level gantry": ["G28 X Y", "G0 X20 Y75", "G28 Z", "G0 X200 Y75", "G28 Z", "G38",
+                     "G0 X113 Y75", "G28 Z"],
+    "level bed": ["G28 X Y Z", "G39", "G0 X30 Y30", "G28 Z", "G0 X190 Y30", "G28 Z",
+                  "G0 X110 Y130", "G28 Z", "G39 S0.2", "G1 X100 Y75 Z0.3 F6000"],
+    "purge": ["M104 S210", "G28 X Y Z", "M109", "G0 X10 Y10 Z0.3", "T0", "G0 B1",
+              "G1 X100 E20 F1200", "G1 B0 F150", "M104 S0"],
+    "eject stuck material": ["M104 S210", "M109", "G36 E-40 F300", "M122 E", "M104 S0"],
+    "tool changes": ["G28 X Y Z", "T0", "G0 X50 Y50 Z1", "G0 B1", "G1 X60 E2 F1200", "T1",
+                     "G0 B1", "G1 X50 E2 F1200", "T0 X55 Y55", "G0 B0"],
+}
+
+
+@pytest.mark.parametrize("name", list(MACROS))
+def test_automaker_macro_shapes_run_as_jobs(wire, name):
+    """Each shape of AutoMaker's macros, as a job file on the card, runs to its end."""
+    m = wire.printer.hw.machine
+    m.insert_filament(E, tip_mm=380.0)
+    wire.ok(b"\xa0" + b"58" + b"08" + b"0.650000")
+    wire.ok(b"\xa0" + b"88" + b"08" + b"-0.70000")
+    file_id = name.replace(" ", "")[:16]
+    wire.upload(file_id, job_text(MACROS[name]))
+    wire.ok(b"\x94" + file_id.encode().ljust(16, b"\0"))
+    wire.wait_job_done(3000)
+    assert ("job finished", file_id.encode().ljust(16, b"\0")) in wire.fw.events
+    assert not wire.fw.faults
+    assert not wire.fw.errors.is_set(ErrorBit.B_STUCK)
+    if name == "level gantry":
+        assert abs(m.za - m.zb) <= 0.02 * 6400
+    if name == "eject stuck material":
+        assert not m.filament_present(E)
+    if name == "home all":
+        assert m.x == m.y == -66
