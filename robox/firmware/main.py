@@ -2,10 +2,12 @@
 
 One pass = `do_everything_else()` (motion, EEPROMs, file system, commands, user
 interface, heaters, hours counter, in that order) then `maintain_job()`. Each
-pass advances the simulated clock. When nothing can happen before a known
-event (a move ending, a dwell, a heater to sample) the clock jumps to it; the
-EEPROMs are then stepped once per jump, which is enough because a settled
-EEPROM's verify cycle only reads (docs/firmware-model.md).
+pass advances the simulated clock by PASS_S, one float addition at a time as the
+printer's own tick count would. `plan()` decides how far: when nothing can happen
+before a known event (a dwell's end, a heater sample, the bookkeeping tick) the
+clock jumps to it; while a line only waits for the motion queue, the step
+interrupts run ahead to the moment it would go on and the passes in between are
+counted, not run (docs/firmware-model.md, "The loop").
 """
 
 from __future__ import annotations
