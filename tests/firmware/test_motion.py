@@ -9,7 +9,7 @@ import pytest
 
 from robox.firmware import motion as motion_module
 from robox.formats.protocol import ErrorBit
-from robox.hardware.machine import E
+from robox.hardware.machine import D, E
 from tests.firmware.wire import job_text
 
 SPU = {"X": 133.7, "Y": 133.7, "Z": 6400.0, "E": 747.0, "B": 2500.0}
@@ -383,3 +383,62 @@ def test_automaker_macro_shapes_run_as_jobs(wire, name):
         assert not m.filament_present(E)
     if name == "home all":
         assert m.x == m.y == -66
+
+
+def automaker_shaped_job(volumes: list[float]) -> str:
+    """A job as AutoMaker's post-processor lays one out (our own words): its header, the
+    pre-print macro, layers of volumetric E moves between valve opens and closes, the
+    post-print macro, and the trailer stating each extruder's volume (the sum of the
+    extrusions' E and D, in mm3)."""
+    lines = ["; File post-processed by the CEL Tech Roboxiser on Mon 2 Jan 2017 10:00:00",
+             ";", "; Pre print gcode", "M104 S210", "G28 X Y Z", "M109", "T0",
+             "; End of Pre print gcode", ";LAYER:0", "G0 Z0.3"]
+    for i, v in enumerate(volumes):
+        if i % 20 == 0:
+            lines += ["G1 B0 F150 ; close", f"G0 X{20 + i // 20 * 10} Y20", "G1 B1 F150 ; open"]
+        lines.append(f"G1 X{20 + i // 20 * 10 + (i % 2) * 4} Y{20 + i % 20 * 2} E{v:.5f} F1800")
+    lines += ["G1 B0 F150", ";", "; Post print gcode", "M104 S0", "G0 Z20",
+              "; End of Post print gcode", ";", "; Extruder E", "; ----------",
+              f"; Volume of material - {sum(volumes)!r}", "; Extruder D", "; ----------",
+              "; Volume of material - 0.0", ";"]
+    return "\r".join(lines) + "\r"
+
+
+def trailer_volumes(text: str) -> dict[str, float]:
+    """{'E': mm3, 'D': mm3} from an AutoMaker job's trailer."""
+    found, extruder = {}, None
+    for line in text.split("\r"):
+        if line.startswith("; Extruder "):
+            extruder = line.split()[-1]
+        elif line.startswith("; Volume of material - ") and extruder:
+            found[extruder] = float(line.rsplit(" ", 1)[1])
+    return found
+
+
+def test_an_automaker_job_extrudes_and_books_the_volume_its_trailer_states(wire):
+    """position.c converts each E (mm3) through the reel's diameter into steps, carrying
+    the rounding into the next move; update_reel_filament_length books whole mm every
+    7.2 s. The hot nozzle passes exactly the filament the steps drive."""
+    from robox.formats.eeprom import EepromIndex
+    m = wire.printer.hw.machine
+    m.insert_filament(E, tip_mm=380.0)
+    wire.ok(b"\xa0" + b"58" + b"08" + b"0.650000")
+    wire.ok(b"\xa0" + b"88" + b"08" + b"-0.70000")
+    eeproms = wire.fw.eeproms
+    before = eeproms.get_float(EepromIndex.REEL0, "remaining_filament")
+    text = automaker_shaped_job([0.21 + 0.0037 * (i % 17) for i in range(60)])
+    stated = trailer_volumes(text)
+    wire.upload("automaker", text.encode())
+    wire.ok(b"\x94" + b"automaker".ljust(16, b"\0"))
+    wire.wait_job_done(3000)
+    assert ("job finished", b"automaker".ljust(16, b"\0")) in wire.fw.events
+    wire.printer.run_until(lambda: False, 8.0)  # one more bookkeeping tick
+    area = f32(f32(1.75 * 1.75) * math.pi / 4.0)
+    filament_mm = stated["E"] / area
+    assert abs(m.extruded[E] - filament_mm * SPU["E"]) <= 1  # whole steps, rounding carried
+    assert m.extruded[D] == 0 and stated["D"] == 0.0
+    after = eeproms.get_float(EepromIndex.REEL0, "remaining_filament")
+    assert before - after == math.floor(filament_mm)
+    # the only error: with no host connected, the reel's 210 C against the melt temperature
+    # the head recorded (none) asks for a nozzle flush (get_nozzle_targets_from_reel)
+    assert wire.fw.errors.bits == 1 << ErrorBit.NOZZLE_FLUSH_NEEDED
