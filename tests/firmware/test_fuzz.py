@@ -76,8 +76,10 @@ def test_random_pronterface_text_is_answered_or_ignored(parts):
         wire.usb.host_write(part)
         wire.printer.run_pass()
     wire.usb.host_write(b"\nM115\n")
+    # a line may heat, home or move filament first (M121 E: a minute to unload temperature,
+    # then the unload's full travel), all in simulated time
     wire.printer.run_until(lambda: b"robox" in bytes(wire.usb._tx) or
-                           wire.fw.command.robox_mode, 30)
+                           wire.fw.command.robox_mode, 900)
     assert wire.fw.faults == []
     out = b""
     while wire.usb.reply_waiting:
