@@ -682,81 +682,73 @@ class Motion:
             self.fw.errors.set(ErrorBit.B_STUCK)
         return moved
 
+    def _watched_move(self, axis: int, what: int, invert: int, slip: bool,
+                      abandon_steps: int, distance: float,
+                      speed_limit: float = FLT_MAX) -> Iterator[Wait]:
+        """Move `axis` by `distance`, its length counted down only once the axis's
+        switch reads other than `invert` (or, with `slip`, once the filament slips),
+        abandoned after `abandon_steps` interrupts; returns the interrupts left."""
+        self.what = what
+        self.switch_select = axis
+        self.filament_slip = False
+        self.slip_select = slip
+        self.switch_invert = invert
+        self.switch_abandon_counter = abandon_steps
+        yield from self.add_block(FLT_MAX, speed_limit, False, self._single(axis, distance))
+        yield from self.wait_until_empty()
+        left = self.switch_abandon_counter
+        self.switch_abandon_counter = 0
+        self.what = NORMAL
+        return left
+
+    def _abandon_steps(self, axis: int, distance: float) -> int:
+        return int(float32(float32(distance) * self.pa["steps_per_unit"][AXES[axis]]))
+
     def grab_filament(self, axis: int, overtravel: float, abandon: float) -> Iterator[Wait]:
-        pa = self.pa
-        spu = pa["steps_per_unit"][AXES[axis]]
+        invert = self.pa["invert_switch"][AXES[axis]]
         yield from self.wait_until_empty()
         if self.aborting():
             return False
-        self.what = LOADING
         self.switch_select = axis
         self.filament_slip = False
         self.slip_select = False
-        self.switch_invert = pa["invert_switch"][AXES[axis]]
-        if self.machine.switch_pin(axis) == self.switch_invert:
-            self.switch_abandon_counter = int(float32(float32(abandon) * spu))
-            yield from self.add_block(FLT_MAX, FLT_MAX, False, self._single(axis, overtravel))
-            yield from self.wait_until_empty()
-        self.switch_abandon_counter = 0
-        self.what = NORMAL
+        self.switch_invert = invert
+        if self.machine.switch_pin(axis) == invert:
+            yield from self._watched_move(axis, LOADING, invert, False,
+                                          self._abandon_steps(axis, abandon), overtravel)
         return self.switch_actuated(axis)
 
     def load_filament(self, axis: int, overtravel: float, distance: float) -> Iterator[Wait]:
-        pa = self.pa
-        spu = pa["steps_per_unit"][AXES[axis]]
+        spu = self.pa["steps_per_unit"][AXES[axis]]
         yield from self.wait_until_empty()
         if self.aborting():
             return False
-        self.what = LOADING
-        self.switch_select = axis
-        self.switch_invert = int(not pa["invert_switch"][AXES[axis]])
-        self.filament_slip = False
-        self.slip_select = True
-        self.switch_abandon_counter = int((distance - 2.0 * overtravel) * spu)
-        yield from self.add_block(FLT_MAX, FLT_MAX, False, self._single(axis, overtravel))
-        yield from self.wait_until_empty()
-        self.switch_abandon_counter = 0
-        self.what = NORMAL
+        yield from self._watched_move(axis, LOADING,
+                                      int(not self.pa["invert_switch"][AXES[axis]]), True,
+                                      int((distance - 2.0 * overtravel) * spu), overtravel)
         return not self.filament_slip and self.switch_actuated(axis)
 
     def unload_filament(self, axis: int, overtravel: float, abandon: float) -> Iterator[Wait]:
-        pa = self.pa
-        spu = pa["steps_per_unit"][AXES[axis]]
         yield from self.wait_until_empty()
         if self.aborting():
             return
-        self.what = UNLOADING
-        self.filament_slip = False
-        self.slip_select = True
-        self.switch_select = axis
-        self.switch_invert = int(not pa["invert_switch"][AXES[axis]])
-        self.switch_abandon_counter = int(float32(float32(abandon) * spu))
-        yield from self.add_block(FLT_MAX, FLT_MAX, False, self._single(axis, -overtravel))
-        yield from self.wait_until_empty()
-        self.switch_abandon_counter = 0
+        yield from self._watched_move(axis, UNLOADING,
+                                      int(not self.pa["invert_switch"][AXES[axis]]), True,
+                                      self._abandon_steps(axis, abandon), -overtravel)
         self.holdoff_since = self.fw.clock.now
-        self.what = NORMAL
 
     def move_filament_until_slip(self, axis: int, overtravel: float, abandon: float,
                                  speed_limit: float) -> Iterator[Wait]:
-        pa = self.pa
-        spu = pa["steps_per_unit"][AXES[axis]]
+        invert = self.pa["invert_switch"][AXES[axis]]
+        spu = self.pa["steps_per_unit"][AXES[axis]]
         yield from self.wait_until_empty()
-        if self.aborting() or self.machine.switch_pin(axis) == pa["invert_switch"][AXES[axis]]:
+        if self.aborting() or self.machine.switch_pin(axis) == invert:
             return 0.0
-        self.what = UNTIL_SLIP
-        self.filament_slip = False
-        self.slip_select = True
-        self.switch_select = axis
-        self.switch_invert = int(not pa["invert_switch"][AXES[axis]])
-        self.switch_abandon_counter = int(float32(float32(abandon) * spu))
-        yield from self.add_block(FLT_MAX, speed_limit, False, self._single(axis, overtravel))
-        yield from self.wait_until_empty()
-        moved = float32(abandon - float32(float32(self.switch_abandon_counter) / spu))
-        moved = moved if overtravel >= 0.0 else -moved
-        self.switch_abandon_counter = 0
-        self.what = NORMAL
-        return moved
+        left = yield from self._watched_move(axis, UNTIL_SLIP, int(not invert), True,
+                                             self._abandon_steps(axis, abandon), overtravel,
+                                             speed_limit)
+        moved = float32(abandon - float32(float32(left) / spu))
+        return moved if overtravel >= 0.0 else -moved
 
 
 __all__ = ["FLT_MAX", "SPEED_UNITS", "B", "Block", "D", "E", "Motion", "X", "Y", "Z"]
