@@ -137,19 +137,9 @@ class Motion:
         return (self.buffer_in - self.buffer_out) & MASK
 
     def ready_for_more(self) -> bool:
-        n = self.queued()
-        if n >= BUFFER_SIZE - 1:
-            return False
-        if n == 0:
-            return True
-        b = self.buffer_out
-        length = 0
-        for _ in range(n):
-            length += self.block[b].length
-            b = (b + 1) & MASK
-        speed = self.block[(self.buffer_in - 1) & MASK].speed
-        v = (speed // self.pa["acceleration"] + MARGIN_UNITS) * speed
-        return length < ((v & U32) >> 5)
+        """is_buffer_ready_for_more: not full, and the steps queued are fewer than the
+        newest block's speed needs to stop plus a 0.1 s margin."""
+        return self._counts_until_ready() == 0
 
     def next_event(self) -> float | None:
         """While motion is under way the loop spins pass by pass, as the firmware's does."""

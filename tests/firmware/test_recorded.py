@@ -151,51 +151,55 @@ def head_b_offsets(p, nozzle0: bytes, nozzle1: bytes) -> None:
     assert robox(p, b"\xa0" + b"8808" + nozzle1) == ACK_CLEAN
 
 
+def queue(p, text: bytes, then_wait: float) -> None:
+    """A queued line (answered with no text) and the recorded wait after it."""
+    assert gcode(p, text) == b"\xe70000"
+    assert wait(p, then_wait) == b""
+
+
+def report(p, text: bytes) -> bytes:
+    """A reporting line's text; the length in the 0xe7 header must match it."""
+    reply = gcode(p, text)
+    assert reply[:1] == b"\xe7" and int(reply[1:5], 16) == len(reply) - 5
+    return reply[5:]
+
+
 def test_homing_and_moves_book_the_steps_made(printer):
     # recorded (mechanics, seed 0): G28 measures X's distance to its switch; M114 shows
     # where whole steps took the head, and mid-move where the interrupts have got to
     head_b_offsets(printer, b"0.650000", b"-0.70000")
-    assert gcode(printer, b"G28 X Y Z\n") == b"\xe70000"
-    assert wait(printer, 7.6) == b""
-    assert gcode(printer, b"M111\n") == b"\xe70016Xdelta:-0.493835\r\nok\r\n"
+    queue(printer, b"G28 X Y Z\n", 7.6)
+    assert report(printer, b"M111\n") == b"Xdelta:-0.493835\r\nok\r\n"
     assert wait(printer, 4.2) == b""
-    assert gcode(printer, b"G36 E20\n") == b"\xe70000"  # no filament: nothing to slip
-    assert wait(printer, 6.0) == b""
-    assert gcode(printer, b"G0 Y155\n") == b"\xe70000"
-    assert wait(printer, 5.5) == b""
-    assert gcode(printer, b"M114\n") == \
-        b"\xe70037X:0.000000 Y:154.996384 Z:0.000000 B:0.000000 T:0\r\nok\r\n"
-    assert gcode(printer, b"G1 X10 Y50 F12000\n") == b"\xe70000"
-    assert wait(printer, 2.6) == b""
-    assert gcode(printer, b"M114\n") == \
-        b"\xe70037X:10.000004 Y:50.000107 Z:0.000000 B:0.000000 T:0\r\nok\r\n"
+    queue(printer, b"G36 E20\n", 6.0)  # no filament: nothing to slip
+    queue(printer, b"G0 Y155\n", 5.5)
+    assert report(printer, b"M114\n") == b"X:0.000000 Y:154.996384 Z:0.000000 B:0.000000 T:0" \
+        b"\r\nok\r\n"
+    queue(printer, b"G1 X10 Y50 F12000\n", 2.6)
+    assert report(printer, b"M114\n") == b"X:10.000004 Y:50.000107 Z:0.000000 B:0.000000 T:0" \
+        b"\r\nok\r\n"
     robox(printer, b"\xb0")
-    assert gcode(printer, b"G1 X226 Y100 F3000\n") == b"\xe70000"
-    assert wait(printer, 3.7) == b""
-    assert gcode(printer, b"M114\n") == \
-        b"\xe70038X:192.917023 Y:92.341278 Z:0.000000 B:0.000000 T:0\r\nok\r\n"
+    queue(printer, b"G1 X226 Y100 F3000\n", 3.7)
+    assert report(printer, b"M114\n") == \
+        b"X:192.917023 Y:92.341278 Z:0.000000 B:0.000000 T:0\r\nok\r\n"
 
 
 def test_t1_makes_the_valve_position_negative(printer):
     # recorded (mechanics, seed 55): the valve of nozzle 1 is B's negative side, so
     # after T1 a homed, closed valve reads -0.000000; M119's B switch is open there
     head_b_offsets(printer, b"0.700000", b"-0.70000")
-    assert gcode(printer, b"G1 Z1 F600\n") == b"\xe70000"  # Z not homed: no move
-    assert wait(printer, 5.6) == b""
-    assert gcode(printer, b"M114\n") == \
-        b"\xe70035X:0.000000 Y:0.000000 Z:0.000000 B:0.000000 T:0\r\nok\r\n"
-    assert gcode(printer, b"T1\n") == b"\xe70000"
-    assert wait(printer, 3.3) == b""
-    assert gcode(printer, b"M114\n") == \
-        b"\xe70035X:0.000000 Y:0.000000 Z:0.000000 B:0.000000 T:1\r\nok\r\n"
+    queue(printer, b"G1 Z1 F600\n", 5.6)  # Z not homed: no move
+    assert report(printer, b"M114\n") == b"X:0.000000 Y:0.000000 Z:0.000000 B:0.000000 T:0" \
+        b"\r\nok\r\n"
+    queue(printer, b"T1\n", 3.3)
+    assert report(printer, b"M114\n") == b"X:0.000000 Y:0.000000 Z:0.000000 B:0.000000 T:1" \
+        b"\r\nok\r\n"
     assert wait(printer, 8.0) == b""
-    assert gcode(printer, b"G28 Z\n") == b"\xe70000"
-    assert wait(printer, 6.2) == b""
-    assert gcode(printer, b"M114\n") == \
-        b"\xe70036X:0.000000 Y:0.000000 Z:0.000000 B:-0.000000 T:1\r\nok\r\n"
-    assert gcode(printer, b"M119\n") == \
-        b"\xe70039M119 X:1 Y:1 Z:0 Z+:0 E:0 D:0 B:0 Eindex:1 Dindex:0\r\nok\r\n"
-    assert gcode(printer, b"G0 B1\n") == b"\xe70000"
-    assert wait(printer, 1.6) == b""
-    assert gcode(printer, b"M114\n") == \
-        b"\xe70035X:0.000000 Y:0.000000 Z:0.000000 B:1.000000 T:1\r\nok\r\n"
+    queue(printer, b"G28 Z\n", 6.2)
+    assert report(printer, b"M114\n") == b"X:0.000000 Y:0.000000 Z:0.000000 B:-0.000000 T:1" \
+        b"\r\nok\r\n"
+    assert report(printer, b"M119\n") == \
+        b"M119 X:1 Y:1 Z:0 Z+:0 E:0 D:0 B:0 Eindex:1 Dindex:0\r\nok\r\n"
+    queue(printer, b"G0 B1\n", 1.6)
+    assert report(printer, b"M114\n") == b"X:0.000000 Y:0.000000 Z:0.000000 B:1.000000 T:1" \
+        b"\r\nok\r\n"
