@@ -99,7 +99,7 @@ class Motion:
         self.acc = [0] * 6
         self.active = False
         self.last_index = [0, 0]  # the interrupt's own copy; starts unknown (0)
-        self.next_tick = self._tick(fw.clock.now) + IDLE_PERIOD
+        self.next_tick = self.tick_of(fw.clock.now) + IDLE_PERIOD
         self.last_tick = self.next_tick - IDLE_PERIOD
         self.autoload_counter = [self.machine.index_wheel(E), self.machine.index_wheel(D)]
         self.slip_error = [False, False]
@@ -109,10 +109,9 @@ class Motion:
         self.interrupts = 0
 
     @staticmethod
-    def _tick(seconds: float) -> int:
+    def tick_of(seconds: float) -> int:
+        """The timer tick nearest a moment of the simulated clock."""
         return int(seconds * TICKS_PER_S + 0.5)
-
-    tick_of = _tick
 
     def set_acceleration(self, line) -> None:
         """M201 (and power-up): S acceleration, T allowable error (1..255); the ramp's
@@ -140,12 +139,6 @@ class Motion:
         """is_buffer_ready_for_more: not full, and the steps queued are fewer than the
         newest block's speed needs to stop plus a 0.1 s margin."""
         return self._counts_until_ready() == 0
-
-    def next_event(self) -> float | None:
-        """While motion is under way the loop spins pass by pass, as the firmware's does."""
-        if self.empty() and not self.machine.hand_busy():
-            return None
-        return self.fw.clock.now
 
     def aborting(self) -> bool:
         return self.fw.job.abort_flag
@@ -347,7 +340,7 @@ class Motion:
     # ------------------------------------------------------- the interrupt
     def catch_up(self) -> None:
         """Run every step interrupt due by now."""
-        limit = self._tick(self.fw.clock.now)
+        limit = self.tick_of(self.fw.clock.now)
         while self.next_tick <= limit:
             self._advance(limit, None)
 
@@ -363,7 +356,7 @@ class Motion:
         """Run the interrupts due by `until`, stopping after the one that leaves the queue
         ready for more (`kind` "ready") or empty ("empty"); returns when that was (now,
         if it already is), or None if it did not happen by `until`."""
-        limit = self._tick(until)
+        limit = self.tick_of(until)
         last = self.fw.clock.now
         while True:
             cap = self._counts_until_ready() if kind == "ready" else \

@@ -262,9 +262,6 @@ class Machine:
     def nozzle_steps(self, axis: int) -> int:
         return _steps(axis, NOZZLE_MM)
 
-    def sensor_steps(self, axis: int) -> int:
-        return _steps(axis, SENSOR_MM)
-
     def door_unlocked(self) -> bool:
         """The door's latch is released by the carriage beyond Y's travel (G37)."""
         return self.y >= DOOR_UNLOCK_Y_MM * STEPS_PER_MM[Y]
@@ -272,9 +269,6 @@ class Machine:
     def feed_by_hand(self, axis: int, mm: float) -> None:
         """Push the filament in by hand (it turns the index wheel as it goes)."""
         self.hand[axis] += mm
-
-    def remove_filament(self, axis: int) -> None:
-        self.filament[axis] = None
 
     def hand_busy(self) -> bool:
         return any(v > 0 for v in self.hand.values())
