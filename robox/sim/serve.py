@@ -8,8 +8,11 @@ Running fast, the clock still waits for a connected host: the printer counts a
 host as connected only if it asked for the error report within the last 5 s of
 the printer's time, so while one is, the clock stops `FAST_SLICE_S` short of
 that lapse until the host speaks again (or has said nothing for
-`HOST_QUIET_S` of wall time, when it is taken to have gone). A host polling
-twice a second stays connected, as with a real printer.
+`HOST_QUIET_S` of wall time, when it is taken to have gone). A command that
+arrives while the clock is held is still answered: the clock may then run on
+to `REPLY_MARGIN_S` short of the lapse, enough for any command that does not
+itself wait on the printer. A host polling twice a second stays connected, as
+with a real printer.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from robox.sim.printer import VirtualPrinter
 READ_SIZE = 4096
 FAST_SLICE_S = 1.0
 HOST_QUIET_S = 2.0
+REPLY_MARGIN_S = 0.1
 
 
 class PtyServer:
@@ -43,6 +47,7 @@ class PtyServer:
         self.stopping = False
         self._pending_out = bytearray()
         self._last_input = 0.0
+        self._reply_owed = False  # the host wrote and has had nothing back yet
 
     def stop(self, *_args) -> None:
         self.stopping = True
@@ -57,11 +62,13 @@ class PtyServer:
         if data:
             self.printer.usb.host_write(data)
             self._last_input = time.monotonic()
+            self._reply_owed = True
 
     def _pump_output(self) -> None:
         usb = self.printer.usb
         while usb.reply_waiting:
             self._pending_out += usb.host_read(READ_SIZE)
+            self._reply_owed = False
         while self._pending_out:
             try:
                 written = os.write(self.master, self._pending_out)
@@ -84,7 +91,8 @@ class PtyServer:
         if not command.host_connected() or \
                 time.monotonic() - self._last_input > HOST_QUIET_S:
             return None
-        return command.last_ack_report + HOST_CONNECTED_S - FAST_SLICE_S
+        margin = REPLY_MARGIN_S if self._reply_owed else FAST_SLICE_S
+        return command.last_ack_report + HOST_CONNECTED_S - margin
 
     def serve_once(self, timeout: float = 0.05) -> None:
         """Wait for the host (at most `timeout` s), then run the firmware."""

@@ -137,3 +137,47 @@ def test_sim_serve_says_on_its_console_when_the_printer_goes_deaf():
         assert len(messages) == 1 and "no more input until reset" in messages[0]
     finally:
         server.close()
+
+
+def test_a_served_printer_held_for_its_host_still_answers_it():
+    """Running fast, the served clock stops short of the moment the printer would stop
+    counting its host as connected. A command the host sends then is answered at once:
+    the host is not left waiting until it is taken to have gone (after which the printer
+    would run on without it and raise the errors a host handles, nozzle flush needed)."""
+    import select
+
+    from robox.formats.protocol import reply_length
+    from robox.sim.serve import FAST_SLICE_S, HOST_QUIET_S, PtyServer
+
+    server = PtyServer(VirtualPrinter(), None)
+    fw = server.printer.firmware
+
+    def ask(frame: bytes) -> tuple[bytes, float]:
+        os.write(server.slave, frame)
+        start, out = time.monotonic(), b""
+        while reply_length(out) is None or len(out) < reply_length(out):
+            assert time.monotonic() - start < 10, f"no reply to {frame[:1]!r}"
+            server.serve_once(timeout=0.01)
+            if select.select([server.slave], [], [], 0)[0]:
+                out += os.read(server.slave, 4096)
+        return out, time.monotonic() - start
+
+    try:
+        assert ask(b"\xb3")[0][0] == 0xE3
+        text = b"M104 S200\r"
+        assert ask(b"\x95" + f"{len(text):04x}".encode() + text)[0][0] == 0xE7
+        held_at = fw.command.last_ack_report + 5 - FAST_SLICE_S
+        for _ in range(10_000):
+            server.serve_once(timeout=0)
+            if fw.clock.now >= held_at:
+                break
+        assert fw.clock.now >= held_at and fw.heaters.any_on()
+        server.serve_once(timeout=0)
+        assert fw.clock.now < held_at + 0.01  # held: the heater's work waits for the host
+        status, took = ask(b"\xb0")
+        assert status[0] == 0xE1 and took < HOST_QUIET_S / 2
+        assert fw.command.host_connected()
+        errors, _ = ask(b"\xb3")
+        assert set(errors[1:]) == {ord("0")}  # nothing a connected host would see latched
+    finally:
+        server.close()
