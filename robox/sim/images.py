@@ -49,12 +49,21 @@ def new_unique_id() -> bytes:
     return b"RBXSIM" + os.urandom(5).hex().upper().encode()
 
 
-def head_eeprom() -> bytes:
-    """A single-material head."""
+def head_eeprom(calibrated: bool = False) -> bytes:
+    """A single-material head. `calibrated`: as a head leaves calibration, with the
+    valve's B offsets measured (nozzle 0 opens at +0.65, nozzle 1 at -0.70 past the B
+    switch) and the reel's PLA as the material it last melted, so that T0/T1 find their
+    needle and a job away from a host asks for no nozzle flush. Uncalibrated (offsets
+    0: T0/T1 raise B_STUCK) is the head the conformance recordings start with."""
     data = bytearray(fmt.DATA_SIZE)
-    for name, value in (("type_code", "RBX01-SM"), ("unique_id", "RBXSIMHEAD0001"),
-                        ("max_temperature", "300"), ("thermistor_beta", "3960"),
-                        ("thermistor_tcal", "1.0"), ("head_hours", "0")):
+    fields = [("type_code", "RBX01-SM"), ("unique_id", "RBXSIMHEAD0001"),
+              ("max_temperature", "300"), ("thermistor_beta", "3960"),
+              ("thermistor_tcal", "1.0"), ("head_hours", "0")]
+    if calibrated:
+        fields += [("nozzle0_b_offset", "0.65"), ("nozzle1_b_offset", "-0.70"),
+                   ("nozzle0_last_filament_temperature", "210"),
+                   ("nozzle1_last_filament_temperature", "210")]
+    for name, value in fields:
         fmt.set_field(data, "head", name, value)
     return fmt.chip_image(bytes(data))
 

@@ -44,7 +44,7 @@ def create_state(directory: Path) -> None:
     card = directory / "sdcard.img"
     if not card.exists():
         _new_card(card)
-    for name, content in (("head.eeprom", images.head_eeprom),
+    for name, content in (("head.eeprom", lambda: images.head_eeprom(calibrated=True)),
                           ("reel0.eeprom", images.reel_eeprom)):
         if not (directory / name).exists():
             write_atomically(directory / name, content())
