@@ -14,7 +14,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import usb.core
 
-from robox.host.client import Printer, prepare_job
+from robox.gcode import prepare_job
+from robox.host.client import Printer
 from robox.host.transport import UsbTransport
 from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend

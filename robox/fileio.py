@@ -58,3 +58,30 @@ def read_input(path: str | os.PathLike, what: str = "file") -> bytes:
 def write_atomically(path: str | os.PathLike, data: bytes) -> None:
     with replacing(path) as temp, open(temp, "wb") as handle:
         handle.write(data)
+
+
+def open_input(path: str | os.PathLike, what: str = "file"):
+    """An input file opened for reading in binary, refused at once (a robox error, one
+    line) when it is missing, unreadable, or not a regular file (a FIFO would block,
+    a device never ends)."""
+    from robox.errors import ImageError, NotFoundError
+
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise NotFoundError(f"{path}: no such file") from None
+    except PermissionError:
+        raise ImageError(f"{path}: not readable (permission denied)") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise ImageError(f"{path}: is a directory, not {what}")
+    if not stat.S_ISREG(info.st_mode):
+        raise ImageError(f"{path}: not a regular file, not {what}")
+    try:
+        return open(path, "rb")
+    except PermissionError:
+        raise ImageError(f"{path}: not readable (permission denied)") from None
+
+
+def read_chunks(handle, size: int = 1 << 20) -> Iterator[bytes]:
+    while chunk := handle.read(size):
+        yield chunk

@@ -14,7 +14,10 @@ from robox.cli.common import emit_json, json_option
 from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.firmware import image_revision
 from robox.formats.protocol import error_names
-from robox.host.client import EEPROMS, catch_up_lines, looks_like_gcode, prepare_job
+from robox.gcode import Options, prepare_job, translated_job
+from robox.gcode.files import inspect
+from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
+from robox.host.client import EEPROMS, catch_up_lines
 from robox.host.devices import list_printers, open_printer
 from robox.host.transport import Disconnected
 from robox.offline.eeprom import parse_assignments
@@ -95,21 +98,43 @@ def files_cmd(ctx, as_json: bool) -> None:
                                       "file name and content.")
 @click.option("--wait", is_flag=True, help="Follow the print to its end.")
 @click.option("--resume", is_flag=True, help="Continue an interrupted upload of FILE.")
+@click.option("--raw", is_flag=True, help="Send FILE as it is (comments stripped), without "
+                                          "translating a slicer's G-code.")
+@click.option("--filament-diameter", type=click.FloatRange(0.5, 5.0),
+              help="mm; default: from the printer's reel, else 1.75.")
+@click.option("--nozzle", type=click.IntRange(0, 1),
+              help="Single-material heads: print with nozzle 0 or 1 (default: from the "
+                   "slicer's nozzle diameter).")
+@click.option("--macros", type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="Directory of AutoMaker-style macros for Macro:NAME lines.")
 @json_option
 @click.pass_context
-def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool,
+def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, raw: bool,
+                 filament_diameter: float | None, nozzle: int | None, macros: Path | None,
                  as_json: bool) -> None:
-    """Upload FILE to the SD card and print it (printing starts after the second chunk)."""
-    raw = read_input(file)
-    if not looks_like_gcode(raw):
-        raise RoboxError(f"{file}: not a G-code file")
-    job = prepare_job(raw)
-    name = file_id or job_id_for(Path(file), job)
-    if len(name.encode("ascii", "replace")) > 16:
-        raise UsageError(f"job id {name!r} is longer than 16 characters")
-    lines = job.count(b"\r")
+    """Upload FILE to the SD card and print it (printing starts after the second chunk).
+
+    A slicer's G-code (PrusaSlicer, Slic3r, Cura, OrcaSlicer, ...: a slicer's header, or
+    M82/M83/G92 E) is first translated into a Robox job for the printer's head and reel
+    (see `roboxise`); any other file goes as it is."""
+    detected = inspect(file)
     quiet = as_json or not sys.stderr.isatty()
     with device(ctx) as printer:
+        if raw or not detected.from_slicer:
+            job = prepare_job(read_input(file))
+        else:
+            options = _printer_options(printer, filament_diameter, nozzle, macros)
+            job, translation = translated_job(file, options)
+            if not as_json:
+                click.echo(f"translated {translation.slicer} G-code ({translation.e_mode} E) "
+                           f"for a {translation.head} head: "
+                           f"{translation.volume_mm3['E'] + translation.volume_mm3['D']:.0f}"
+                           f" mm3, {translation.valve_cycles} valve openings "
+                           "(--raw sends it as it is)", err=True)
+        name = file_id or job_id_for(Path(file), job)
+        if len(name.encode("ascii", "replace")) > 16:
+            raise UsageError(f"job id {name!r} is longer than 16 characters")
+        lines = job.count(b"\r")
         before = _reels(printer) if wait else {}
         started = time.monotonic()
         sim = getattr(printer, "virtual", None)
@@ -154,6 +179,23 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool,
             click.echo(f"the print caught up with the upload {summary['catch_up_resumes']} "
                        "time(s) and was resumed")
         click.echo(f"errors: {', '.join(summary['errors']) or 'none'}")
+
+
+def _printer_options(printer, filament_diameter: float | None, nozzle: int | None,
+                     macros: Path | None) -> Options:
+    """Translation options from the printer's head and reels, and the user's."""
+    eeproms = printer.status().eeproms
+    head = HEAD_DEFAULT
+    if eeproms.get("head") == "valid":
+        head = str(printer.read_eeprom_fields("head")["type_code"]).strip() or HEAD_DEFAULT
+    diameters = []
+    for reel in ("reel0", "reel1"):
+        value = None
+        if filament_diameter is None and eeproms.get(reel) == "valid":
+            value = printer.read_eeprom_fields(reel)["filament_diameter"]
+        diameters.append(float(value) if value else filament_diameter or DEFAULT_DIAMETER)
+    return Options(filament_diameter=(diameters[0], diameters[1]), head=head, nozzle=nozzle,
+                   macros=macros)
 
 
 def _reels(printer) -> dict:

@@ -108,32 +108,6 @@ class Status:
                    report[220:221] == b"1", bytes(report))
 
 
-def prepare_job(text: bytes) -> bytes:
-    """Comments and blank lines stripped, each line ended with CR (protocol.md)."""
-    lines = []
-    for raw in text.replace(b"\r", b"\n").split(b"\n"):
-        line = raw.split(b";", 1)[0]
-        paren = line.find(b"(")
-        if paren >= 0:
-            line = line[:paren]
-        line = line.strip()
-        if line:
-            lines.append(line)
-    return b"".join(line + b"\r" for line in lines)
-
-
-def looks_like_gcode(text: bytes) -> bool:
-    """Printable text whose lines start with G, M or T codes."""
-    if not text or b"\0" in text[:4096]:
-        return False
-    try:
-        text[:65536].decode("ascii")
-    except UnicodeDecodeError:
-        return False
-    words = [line.split()[0] for line in prepare_job(text[:65536]).split(b"\r") if line.split()]
-    return bool(words) and all(w[:1].upper() in (b"G", b"M", b"T") for w in words[:50])
-
-
 class Printer:
     """A printer at the other end of a transport."""
 

@@ -7,7 +7,8 @@ import pytest
 from click.testing import CliRunner
 
 from robox.cli import cli
-from robox.host.client import CATCH_UP_CHECK_CHUNKS, catch_up_lines, prepare_job
+from robox.gcode import prepare_job
+from robox.host.client import CATCH_UP_CHECK_CHUNKS, catch_up_lines
 from robox.sim.printer import VirtualPrinter
 from tests.firmware.wire import job_text
 from tests.host.test_client import connect

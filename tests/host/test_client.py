@@ -10,7 +10,8 @@ from click.testing import CliRunner
 
 from robox.cli import cli
 from robox.formats.protocol import reply_length
-from robox.host.client import Printer, PrinterError, prepare_job
+from robox.gcode import prepare_job
+from robox.host.client import Printer, PrinterError
 from robox.host.transport import Disconnected, UsbTransport
 from robox.sim import images
 from robox.sim.printer import VirtualPrinter

@@ -1,0 +1,16 @@
+"""G-code: the text of jobs, and slicers' files translated into Robox jobs."""
+
+from robox.gcode.files import roboxise_file, translated_job
+from robox.gcode.text import code_part, looks_like_gcode, prepare_job, split_lines, words
+from robox.gcode.translate import (
+    Detected,
+    Options,
+    Summary,
+    detect,
+    head_kind,
+    translate,
+)
+
+__all__ = ["Detected", "Options", "Summary", "code_part", "detect", "head_kind",
+           "looks_like_gcode", "prepare_job", "roboxise_file", "split_lines", "translate",
+           "translated_job", "words"]

@@ -1,0 +1,77 @@
+"""G-code as text: lines, comments, words, and the form a Robox job takes on the wire.
+
+A job on the printer's card is ASCII, one command per line ended with CR, with no
+comments or blank lines (protocol.md). Slicers' files carry comments in UTF-8 (names,
+degree signs), LF or CRLF line ends, and words in either case; the firmware reads
+only the command part, so everything after `;` or inside `( )` is dropped, and bytes
+>= 0x80 may appear only in comments.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+
+SNIFF_BYTES = 65536
+
+
+def code_part(raw: bytes) -> bytes:
+    """A line without its comment (`;` to the end, or from `(`) and outer blanks."""
+    line = raw.split(b";", 1)[0]
+    paren = line.find(b"(")
+    if paren >= 0:
+        line = line[:paren]
+    return line.strip()
+
+
+def split_lines(chunks: Iterable[bytes]) -> Iterator[bytes]:
+    """Lines (without their ends) from a stream of byte chunks; CR, LF or CRLF."""
+    pending = b""
+    for chunk in chunks:
+        pending += chunk.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        *complete, pending = pending.split(b"\n")
+        yield from complete
+    if pending:
+        yield pending
+
+
+def prepare_job(text: bytes) -> bytes:
+    """Comments and blank lines stripped, each line ended with CR (protocol.md)."""
+    return b"".join(line + b"\r" for line in (code_part(raw) for raw in split_lines([text]))
+                    if line)
+
+
+def looks_like_gcode(text: bytes) -> bool:
+    """Text whose command lines start with G, M or T codes (comments may hold any
+    bytes, UTF-8 included; the commands must be ASCII)."""
+    head = text[:SNIFF_BYTES]
+    if not head or b"\0" in head[:4096]:
+        return False
+    lines = [code_part(raw) for raw in split_lines([head])]
+    if len(head) == SNIFF_BYTES and lines:
+        lines.pop()  # cut at the sniff limit
+    words = [line.split()[0] for line in lines if line]
+    if not words or not all(line.isascii() for line in lines):
+        return False
+    return all(w[:1].upper() in (b"G", b"M", b"T") for w in words[:50])
+
+
+def words(line: bytes) -> tuple[str, dict[str, str]]:
+    """('G1', {'X': '10', 'E': '.5'}) from b'G1 X10 E.5'; letters upper-cased. Words may
+    be run together (b'G1X10E.5'), as some slicers write them."""
+    text = line.decode("ascii").upper()
+    out: list[tuple[str, str]] = []
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if c.isspace():
+            i += 1
+            continue
+        j = i + 1
+        while j < n and not text[j].isalpha() and not text[j].isspace():
+            j += 1
+        out.append((c, text[i + 1 : j]))
+        i = j
+    if not out:
+        return "", {}
+    (letter, number), rest = out[0], out[1:]
+    return letter + number, {k: v for k, v in rest}
