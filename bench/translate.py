@@ -1,0 +1,71 @@
+#!/usr/bin/env python3
+"""The translator's throughput on a real slicer's file, beside a plain read of it.
+
+Usage: python bench/translate.py [--quick]
+Slices the bench's star tower with slic3r as a user would (absolute E in mm,
+no volumetric E; cached in bench/.cache/), then times, in one run: a plain
+line-by-line read of the file (`for line in f: line.split()`) and
+`roboxise_file` writing the Robox job. Prints lines/s, MB/s and the ratio.
+Asserts nothing.
+"""
+
+import math
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from model import CACHE, star_tower, write_stl  # noqa: E402
+
+from robox.gcode import Options, roboxise_file  # noqa: E402
+
+
+def user_gcode(quick: bool) -> Path:
+    CACHE.mkdir(parents=True, exist_ok=True)
+    name = "tower-user-quick" if quick else "tower-user"
+    gcode = CACHE / f"{name}.gcode"
+    if gcode.exists():
+        return gcode
+    if shutil.which("slic3r") is None:
+        raise SystemExit("bench/translate.py needs slic3r (apt-get install slic3r)")
+    stl = CACHE / f"{name}.stl"
+    height = 20.0 if quick else 80.0
+    write_stl(stl, star_tower(height, 30.0, 5, math.pi / 2, int(height)))
+    subprocess.run(["slic3r", str(stl), "--output", str(gcode), "--layer-height", "0.2",
+                    "--fill-density", "20%", "--perimeters", "3", "--nozzle-diameter", "0.4",
+                    "--filament-diameter", "1.75", "--temperature", "210",
+                    "--bed-temperature", "60", "--print-center", "105,75", "--skirts", "1"],
+                   check=True, capture_output=True)
+    return gcode
+
+
+def main() -> None:
+    path = user_gcode("--quick" in sys.argv)
+    size = path.stat().st_size
+    start = time.perf_counter()
+    lines = 0
+    with open(path, "rb") as f:
+        for line in f:
+            line.split()
+            lines += 1
+    plain = time.perf_counter() - start
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        summary = roboxise_file(path, Path(tmp) / "job.robox", Options())
+        took = time.perf_counter() - start
+    print(f"slic3r G-code {path.name}: {size / 1e6:.2f} MB, {lines} lines "
+          f"({summary.e_mode} E, {summary.volume_mm3['E']:.0f} mm3, "
+          f"{summary.valve_cycles} valve openings)")
+    print(f"  plain read:  {lines / plain:,.0f} lines/s, {size / 1e6 / plain:.1f} MB/s")
+    print(f"  roboxise:    {lines / took:,.0f} lines/s, {size / 1e6 / took:.2f} MB/s")
+    print(f"  ratio roboxise / plain read: {plain / took:.4f}")
+
+
+if __name__ == "__main__":
+    main()
