@@ -69,9 +69,13 @@ def write_stl(path: Path, triangles: list[tuple]) -> None:
                                   *a, *b, *c, 0))
 
 
-def sliced_gcode(quick: bool) -> Path:
+VOLUMETRIC = ("--use-volumetric-e", "--use-relative-e-distances")
+
+
+def sliced_gcode(quick: bool, name: str = "tower", extra: tuple = VOLUMETRIC) -> Path:
+    """The star tower sliced by slic3r with `extra` options (cached by `name`)."""
     CACHE.mkdir(parents=True, exist_ok=True)
-    name = "tower-quick" if quick else "tower"
+    name = f"{name}-quick" if quick else name
     gcode = CACHE / f"{name}.gcode"
     if gcode.exists():
         return gcode
@@ -83,9 +87,8 @@ def sliced_gcode(quick: bool) -> Path:
     subprocess.run(["slic3r", str(stl), "--output", str(gcode), "--layer-height", "0.2",
                     "--fill-density", "20%", "--perimeters", "3", "--nozzle-diameter", "0.4",
                     "--filament-diameter", "1.75", "--temperature", "210",
-                    "--bed-temperature", "60", "--use-volumetric-e", "--use-relative-e-distances",
-                    "--print-center",
-                    "105,75", "--skirts", "1"], check=True, capture_output=True)
+                    "--bed-temperature", "60", *extra, "--print-center", "105,75",
+                    "--skirts", "1"], check=True, capture_output=True)
     return gcode
 
 

@@ -9,9 +9,6 @@ line-by-line read of the file (`for line in f: line.split()`) and
 Asserts nothing.
 """
 
-import math
-import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -21,32 +18,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from model import CACHE, star_tower, write_stl  # noqa: E402
+from model import sliced_gcode  # noqa: E402
 
 from robox.gcode import Options, roboxise_file  # noqa: E402
 
 
-def user_gcode(quick: bool) -> Path:
-    CACHE.mkdir(parents=True, exist_ok=True)
-    name = "tower-user-quick" if quick else "tower-user"
-    gcode = CACHE / f"{name}.gcode"
-    if gcode.exists():
-        return gcode
-    if shutil.which("slic3r") is None:
-        raise SystemExit("bench/translate.py needs slic3r (apt-get install slic3r)")
-    stl = CACHE / f"{name}.stl"
-    height = 20.0 if quick else 80.0
-    write_stl(stl, star_tower(height, 30.0, 5, math.pi / 2, int(height)))
-    subprocess.run(["slic3r", str(stl), "--output", str(gcode), "--layer-height", "0.2",
-                    "--fill-density", "20%", "--perimeters", "3", "--nozzle-diameter", "0.4",
-                    "--filament-diameter", "1.75", "--temperature", "210",
-                    "--bed-temperature", "60", "--print-center", "105,75", "--skirts", "1"],
-                   check=True, capture_output=True)
-    return gcode
-
-
 def main() -> None:
-    path = user_gcode("--quick" in sys.argv)
+    path = sliced_gcode("--quick" in sys.argv, "tower-user", ())  # E in mm, absolute
     size = path.stat().st_size
     start = time.perf_counter()
     lines = 0

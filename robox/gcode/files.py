@@ -3,7 +3,9 @@ file renamed into place (a failed translation leaves nothing behind)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 from robox.errors import ImageError
@@ -34,16 +36,21 @@ def inspect(path: str | os.PathLike) -> Detected:
     return detect(head, tail)
 
 
-def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
-                  options: Options) -> Summary:
-    """Translate `source` into the Robox job `target` (lines ended with CR, as they go
-    to the card). Streams; `target` appears only when the whole file translated."""
+@contextlib.contextmanager
+def _translation(source: str | os.PathLike, options: Options
+                 ) -> Iterator[tuple[Iterator[bytes], Summary]]:
     with open_input(source, "a G-code file") as handle:
         head, tail = _sniff(handle)
         if not looks_like_gcode(head):
             raise ImageError(f"{source}: not a G-code file")
-        lines, summary = translate(split_lines(read_chunks(handle)), options,
-                                   detect(head, tail))
+        yield translate(split_lines(read_chunks(handle)), options, detect(head, tail))
+
+
+def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
+                  options: Options) -> Summary:
+    """Translate `source` into the Robox job `target` (lines ended with CR, as they go
+    to the card). Streams; `target` appears only when the whole file translated."""
+    with _translation(source, options) as (lines, summary):
         if Path(target).resolve() == Path(source).resolve():
             raise ImageError(f"{target}: the output would overwrite the input")
         with replacing(target) as temp, open(temp, "wb") as out:
@@ -60,11 +67,6 @@ def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
 
 def translated_job(source: str | os.PathLike, options: Options) -> tuple[bytes, Summary]:
     """The Robox job for `source` in memory (what send-job uploads)."""
-    with open_input(source, "a G-code file") as handle:
-        head, tail = _sniff(handle)
-        if not looks_like_gcode(head):
-            raise ImageError(f"{source}: not a G-code file")
-        lines, summary = translate(split_lines(read_chunks(handle)), options,
-                                   detect(head, tail))
+    with _translation(source, options) as (lines, summary):
         parts = [line + b"\r" for line in lines]
     return b"".join(parts), summary
