@@ -42,17 +42,8 @@ def replacing(path: str | os.PathLike) -> Iterator[str]:
 
 def read_input(path: str | os.PathLike, what: str = "file") -> bytes:
     """The bytes of an input file, or a robox error saying plainly why not."""
-    from robox.errors import ImageError, NotFoundError
-
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise NotFoundError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ImageError(f"{path}: is a directory, not {what}") from None
-    except PermissionError:
-        raise ImageError(f"{path}: not readable (permission denied)") from None
-    return data
+    with open_input(path, what) as handle:
+        return handle.read()
 
 
 def write_atomically(path: str | os.PathLike, data: bytes) -> None:

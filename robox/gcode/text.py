@@ -27,9 +27,13 @@ def split_lines(chunks: Iterable[bytes]) -> Iterator[bytes]:
     """Lines (without their ends) from a stream of byte chunks; CR, LF or CRLF."""
     pending = b""
     for chunk in chunks:
-        pending += chunk.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
-        *complete, pending = pending.split(b"\n")
+        pending += chunk
+        held = pending[-1:] == b"\r"  # its LF may start the next chunk
+        text = pending[:-1] if held else pending
+        *complete, rest = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n")
+        pending = rest + (b"\r" if held else b"")
         yield from complete
+    pending = pending.rstrip(b"\r")
     if pending:
         yield pending
 

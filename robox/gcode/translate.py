@@ -58,8 +58,6 @@ SLICERS = (  # (name, pattern in the first comment lines)
 )
 SETTING = re.compile(rb"^;\s*([A-Za-z_ ]+?)\s*[=:]\s*(.*?)\s*$")
 
-# Codes passed through as they are (the firmware has them with the same meaning).
-KEPT = {"G0", "G1", "G4", "G90", "G91", "M84", "M400", "M106", "M107"}
 # Codes dropped: the printer has no such code, or one with another meaning.
 DROPPED_QUIETLY = {"G21", "M82", "M83"}
 
@@ -125,7 +123,6 @@ class Detected:
     volumetric: bool = False
     relative_e: bool = False
     nozzle_diameter: float | None = None
-    filament_diameter: float | None = None
     marlin_e: bool = False  # M82, M83 or G92 E: E written in a slicer's Marlin manner
 
     @property
@@ -162,7 +159,6 @@ def detect(head: bytes, tail: bytes = b"") -> Detected:
     if settings.get(b"use_relative_e_distances", b"0").strip() in (b"1", b"true"):
         found.relative_e = True
     found.nozzle_diameter = _first_float(settings.get(b"nozzle_diameter"))
-    found.filament_diameter = _first_float(settings.get(b"filament_diameter"))
     return found
 
 
@@ -488,8 +484,8 @@ class Translator:
                 yield from self._close()
             if axes:
                 yield (head + feed).encode()
-            elif feed:
-                yield from self._feed_only(code, feed)
+            elif feed:  # `G1 F2400` alone sets the feed rate for the moves after it
+                yield f"{code}{feed}".encode()
             return
         if volume > 1e-9 and self.retracted[self.tool] > 0:  # the unretraction
             owed = min(volume, self.retracted[self.tool])
@@ -506,11 +502,7 @@ class Translator:
         if axes:  # a travel: the valve stays as the slicer left it (closed by a retraction)
             yield (head + feed).encode()
         elif feed:
-            yield from self._feed_only(code, feed)
-
-    def _feed_only(self, code: str, feed: str) -> Iterator[bytes]:
-        """`G1 F1800` alone sets the feed rate for the moves after it."""
-        yield f"{code}{feed}".encode()
+            yield f"{code}{feed}".encode()
 
 
 def translate(lines: Iterable[bytes], options: Options, detected: Detected
