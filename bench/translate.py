@@ -1,14 +1,19 @@
 #!/usr/bin/env python3
 """The translator's throughput on a real slicer's file, beside a plain read of it.
 
-Usage: python bench/translate.py [--quick]
+Usage: python bench/translate.py [--quick] [--memory]
 Slices the bench's star tower with slic3r as a user would (absolute E in mm,
 no volumetric E; cached in bench/.cache/), then times, in one run: a plain
 line-by-line read of the file (`for line in f: line.split()`) and
 `roboxise_file` writing the Robox job. Prints lines/s, MB/s and the ratio.
+With --memory, also the peak resident memory of `robox-cli roboxise` and of
+`robox-cli --device sim:DIR send-job` (upload only) on that file and on a
+file about 50 MB long (the same layers over and over), each in its own process.
 Asserts nothing.
 """
 
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -43,6 +48,36 @@ def main() -> None:
     print(f"  plain read:  {lines / plain:,.0f} lines/s, {size / 1e6 / plain:.1f} MB/s")
     print(f"  roboxise:    {lines / took:,.0f} lines/s, {size / 1e6 / took:.2f} MB/s")
     print(f"  ratio roboxise / plain read: {plain / took:.4f}")
+    if "--memory" in sys.argv:
+        memory(path)
+
+
+def peak_rss_mb(*args: str) -> float:
+    """Run robox-cli with `args` in its own process; its peak resident memory in MB."""
+    child = subprocess.Popen([sys.executable, "-m", "robox.cli", *args], cwd=ROOT,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(child.pid, 0)
+    if status:
+        raise SystemExit(f"robox-cli {' '.join(args)} failed: {child.stderr.read().decode()}")
+    return usage.ru_maxrss / 1024
+
+
+def memory(path: Path) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        big = Path(tmp) / "big.gcode"
+        body = path.read_bytes()
+        head, _, rest = body.partition(b"\nG1 Z")
+        layers = b"\nG1 Z" + rest.split(b"\n; filament used")[0]
+        with open(big, "wb") as out:
+            out.write(head)
+            while out.tell() < 50_000_000:
+                out.write(layers)
+        for name in (path, big):
+            size = name.stat().st_size / 1e6
+            roboxise = peak_rss_mb("roboxise", str(name), "-o", f"{tmp}/out.robox")
+            send = peak_rss_mb("--device", f"sim:{tmp}/printer", "send-job", str(name))
+            print(f"  peak RSS on {size:.1f} MB: roboxise {roboxise:.0f} MB, "
+                  f"send-job {send:.0f} MB")
 
 
 if __name__ == "__main__":

@@ -40,10 +40,22 @@ def replacing(path: str | os.PathLike) -> Iterator[str]:
         raise
 
 
-def read_input(path: str | os.PathLike, what: str = "file") -> bytes:
-    """The bytes of an input file, or a robox error saying plainly why not."""
+def read_input(path: str | os.PathLike, what: str = "file", limit: int | None = None,
+               allow_empty: bool = False) -> bytes:
+    """The bytes of an input file, or a robox error saying plainly why not: missing,
+    unreadable, not a regular file, empty (unless `allow_empty`), or (with `limit`)
+    larger than any `what`."""
+    from robox.errors import ImageError
+
     with open_input(path, what) as handle:
-        return handle.read()
+        if limit is not None and os.fstat(handle.fileno()).st_size > limit:
+            raise ImageError(f"{path}: larger than {what} can be ({limit} bytes)")
+        data = handle.read() if limit is None else handle.read(limit + 1)
+    if not data and not allow_empty:
+        raise ImageError(f"{path}: the file is empty")
+    if limit is not None and len(data) > limit:
+        raise ImageError(f"{path}: larger than {what} can be ({limit} bytes)")
+    return data
 
 
 def write_atomically(path: str | os.PathLike, data: bytes) -> None:

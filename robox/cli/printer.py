@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import sys
 import time
 from dataclasses import asdict
@@ -14,10 +13,10 @@ from robox.cli.common import emit_json, json_option
 from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.firmware import image_revision
 from robox.formats.protocol import error_names
-from robox.gcode import Options, prepare_job, translated_job
+from robox.gcode import JobFile, Options, job_file
 from robox.gcode.files import inspect
 from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
-from robox.host.client import EEPROMS, catch_up_lines
+from robox.host.client import EEPROMS, CatchUpPoints, catch_up_lines
 from robox.host.devices import list_printers, open_printer
 from robox.host.transport import Disconnected
 from robox.offline.eeprom import parse_assignments
@@ -31,11 +30,11 @@ def device(ctx: click.Context):
     return open_printer(ctx.obj.get("device") if ctx.obj else None)
 
 
-def job_id_for(path: Path, job: bytes) -> str:
-    """A fresh id for this job's content: the name's start and a content hash (so the
-    same file resumes under the same id)."""
+def job_id_for(path: Path, sha1: str) -> str:
+    """A fresh id for this job's content: the name's start and the start of the content's
+    SHA-1 (so the same file resumes under the same id)."""
     stem = "".join(c for c in path.stem if c.isascii() and c.isalnum())[:7] or "job"
-    return f"{stem}_{hashlib.sha1(job).hexdigest()[:16 - len(stem) - 1]}"
+    return f"{stem}_{sha1[:16 - len(stem) - 1]}"
 
 
 @click.command("printers")
@@ -120,55 +119,21 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
     detected = inspect(file)
     quiet = as_json or not sys.stderr.isatty()
     with device(ctx) as printer:
-        if raw or not detected.from_slicer:
-            job = prepare_job(read_input(file))
-        else:
+        options = None
+        if not raw and detected.from_slicer:
             options = _printer_options(printer, filament_diameter, nozzle, macros)
-            job, translation = translated_job(file, options)
-            if not as_json:
-                click.echo(f"translated {translation.slicer} G-code ({translation.e_mode} E) "
-                           f"for a {translation.head} head: "
-                           f"{translation.volume_mm3['E'] + translation.volume_mm3['D']:.0f}"
-                           f" mm3, {translation.valve_cycles} valve openings "
-                           "(--raw sends it as it is)", err=True)
-        name = file_id or job_id_for(Path(file), job)
-        if len(name.encode("ascii", "replace")) > 16:
-            raise UsageError(f"job id {name!r} is longer than 16 characters")
-        lines = job.count(b"\r")
-        before = _reels(printer) if wait else {}
-        started = time.monotonic()
-        sim = getattr(printer, "virtual", None)
-        sim_start = sim.firmware.clock.now if sim else None
-        with click.progressbar(length=len(job), label=f"uploading {name}", file=sys.stderr,
-                               hidden=quiet) as bar:
-            sent = [0]
-
-            def progress(done: int, total: int) -> None:
-                bar.update(done - sent[0])
-                sent[0] = done
-
-            try:
-                printer.send_file(job, name, resume=resume, progress=progress,
-                                  notice=lambda message: click.echo(message, err=True))
-            except Disconnected:
-                raise RoboxError(f"the printer was disconnected after {sent[0]} of {len(job)}"
-                                 f" bytes; run the same command with --resume to continue"
-                                 ) from None
-        summary = {"id": name, "bytes": len(job), "lines": lines}
-        if wait:
-            _follow(printer, name, job, quiet)
-            after = _reels(printer)
-            summary["print_time_s"] = round(time.monotonic() - started, 1)
-            if sim is not None:
-                summary["simulated_print_time_s"] = round(sim.firmware.clock.now - sim_start, 1)
-            summary["filament_used_mm"] = {reel: round(before[reel] - after[reel], 1)
-                                           for reel in before if reel in after}
-            summary["errors"] = error_names(printer.errors())
-            summary["catch_up_resumes"] = printer.catch_up_resumes
+        with job_file(file, options) as job:
+            if job.translation is not None and not as_json:
+                t = job.translation
+                click.echo(f"translated {t.slicer} G-code ({t.e_mode} E) for a {t.head} head: "
+                           f"{t.volume_mm3['E'] + t.volume_mm3['D']:.0f} mm3, "
+                           f"{t.valve_cycles} valve openings (--raw sends it as it is)",
+                           err=True)
+            summary = _upload(printer, file, job, file_id, resume, wait, quiet)
     if as_json:
         emit_json(summary)
         return
-    click.echo(f"sent {name}: {len(job)} bytes, {lines} lines")
+    click.echo(f"sent {summary['id']}: {summary['bytes']} bytes, {summary['lines']} lines")
     if wait:
         took = summary.get("simulated_print_time_s", summary["print_time_s"])
         click.echo(f"printed in {took / 60:.1f} min"
@@ -179,6 +144,47 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
             click.echo(f"the print caught up with the upload {summary['catch_up_resumes']} "
                        "time(s) and was resumed")
         click.echo(f"errors: {', '.join(summary['errors']) or 'none'}")
+
+
+def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
+            wait: bool, quiet: bool) -> dict:
+    """Send the job file (a chunk at a time) and, with `wait`, follow its print."""
+    name = file_id or job_id_for(Path(file), job.sha1)
+    if len(name.encode("ascii", "replace")) > 16:
+        raise UsageError(f"job id {name!r} is longer than 16 characters")
+    before = _reels(printer) if wait else {}
+    started = time.monotonic()
+    sim = getattr(printer, "virtual", None)
+    sim_start = sim.firmware.clock.now if sim else None
+    with open(job.path, "rb") as source, \
+            click.progressbar(length=job.size, label=f"uploading {name}", file=sys.stderr,
+                              hidden=quiet) as bar:
+        sent = [0]
+
+        def progress(done: int, total: int) -> None:
+            bar.update(done - sent[0])
+            sent[0] = done
+
+        try:
+            printer.send_file(source, name, resume=resume, progress=progress,
+                              notice=lambda message: click.echo(message, err=True))
+        except Disconnected:
+            raise RoboxError(f"the printer was disconnected after {sent[0]} of {job.size}"
+                             f" bytes; run the same command with --resume to continue"
+                             ) from None
+        summary = {"id": name, "bytes": job.size, "lines": job.lines}
+        if wait:
+            _follow(printer, name, job.lines, catch_up_lines(source), quiet)
+    if wait:
+        after = _reels(printer)
+        summary["print_time_s"] = round(time.monotonic() - started, 1)
+        if sim is not None:
+            summary["simulated_print_time_s"] = round(sim.firmware.clock.now - sim_start, 1)
+        summary["filament_used_mm"] = {reel: round(before[reel] - after[reel], 1)
+                                       for reel in before if reel in after}
+        summary["errors"] = error_names(printer.errors())
+        summary["catch_up_resumes"] = printer.catch_up_resumes
+    return summary
 
 
 def _printer_options(printer, filament_diameter: float | None, nozzle: int | None,
@@ -207,13 +213,11 @@ def _reels(printer) -> dict:
     return remaining
 
 
-def _follow(printer, name: str, job: bytes, quiet: bool) -> None:
+def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool) -> None:
     """Follow the print to its end. Asking for the error report on every poll keeps the
     printer counting a host as connected, as AutoMaker did (no flush-needed or slip
     pauses that a host handles). A pause that is not the upload's catch-up is reported
     once and waited out."""
-    lines = job.count(b"\r")
-    whole = catch_up_lines(job)
     reported = set()
 
     def notice(message: str) -> None:

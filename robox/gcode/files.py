@@ -4,13 +4,16 @@ file renamed into place (a failed translation leaves nothing behind)."""
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
-from collections.abc import Iterator
+import tempfile
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 from robox.errors import ImageError
 from robox.fileio import open_input, read_chunks, replacing
-from robox.gcode.text import looks_like_gcode, split_lines
+from robox.gcode.text import code_part, looks_like_gcode, split_lines
 from robox.gcode.translate import Detected, Options, Summary, detect, translate
 
 HEAD_BYTES = 1 << 16
@@ -29,44 +32,84 @@ def _sniff(handle) -> tuple[bytes, bytes]:
 
 
 def inspect(path: str | os.PathLike) -> Detected:
-    with open_input(path, "a G-code file") as handle:
-        head, tail = _sniff(handle)
-    if not looks_like_gcode(head):
-        raise ImageError(f"{path}: not a G-code file")
-    return detect(head, tail)
+    """What `path` holds (the slicer, the E mode), from its head and tail."""
+    with _lines(path) as (_, detected):
+        return detected
 
 
 @contextlib.contextmanager
-def _translation(source: str | os.PathLike, options: Options
-                 ) -> Iterator[tuple[Iterator[bytes], Summary]]:
+def _lines(source: str | os.PathLike) -> Iterator[tuple[Iterator[bytes], Detected]]:
     with open_input(source, "a G-code file") as handle:
         head, tail = _sniff(handle)
         if not looks_like_gcode(head):
             raise ImageError(f"{source}: not a G-code file")
-        yield translate(split_lines(read_chunks(handle)), options, detect(head, tail))
+        yield split_lines(read_chunks(handle)), detect(head, tail)
+
+
+def _write_job(lines: Iterable[bytes], target: str | os.PathLike) -> None:
+    """Lines ended with CR, as they go to the card, to a temporary file renamed into
+    place once all are written."""
+    with replacing(target) as temp, open(temp, "wb") as out:
+        batch = []
+        for line in lines:
+            batch.append(line)
+            if len(batch) >= 4096:
+                out.write(b"\r".join(batch) + b"\r")
+                batch.clear()
+        if batch:
+            out.write(b"\r".join(batch) + b"\r")
+
+
+def _check_distinct(source: str | os.PathLike, target: str | os.PathLike) -> None:
+    if Path(target).resolve() == Path(source).resolve():
+        raise ImageError(f"{target}: the output would overwrite the input")
 
 
 def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
                   options: Options) -> Summary:
-    """Translate `source` into the Robox job `target` (lines ended with CR, as they go
-    to the card). Streams; `target` appears only when the whole file translated."""
-    with _translation(source, options) as (lines, summary):
-        if Path(target).resolve() == Path(source).resolve():
-            raise ImageError(f"{target}: the output would overwrite the input")
-        with replacing(target) as temp, open(temp, "wb") as out:
-            batch = []
-            for line in lines:
-                batch.append(line)
-                if len(batch) >= 4096:
-                    out.write(b"\r".join(batch) + b"\r")
-                    batch.clear()
-            if batch:
-                out.write(b"\r".join(batch) + b"\r")
+    """Translate `source` into the Robox job `target`. Streams; `target` appears only
+    when the whole file translated."""
+    with _lines(source) as (lines, detected):
+        _check_distinct(source, target)
+        translated, summary = translate(lines, options, detected)
+        _write_job(translated, target)
     return summary
 
 
-def translated_job(source: str | os.PathLike, options: Options) -> tuple[bytes, Summary]:
-    """The Robox job for `source` in memory (what send-job uploads)."""
-    with _translation(source, options) as (lines, summary):
-        parts = [line + b"\r" for line in lines]
-    return b"".join(parts), summary
+def strip_file(source: str | os.PathLike, target: str | os.PathLike) -> None:
+    """`source` as a job as it is: comments and blank lines dropped, CR line ends."""
+    with _lines(source) as (lines, _):
+        _check_distinct(source, target)
+        _write_job((code for code in map(code_part, lines) if code), target)
+
+
+@dataclass
+class JobFile:
+    """A job ready to upload, in a temporary file."""
+
+    path: Path
+    size: int
+    lines: int
+    sha1: str
+    translation: Summary | None  # None: sent as it is
+
+
+@contextlib.contextmanager
+def job_file(source: str | os.PathLike, options: Options | None) -> Iterator[JobFile]:
+    """The Robox job for `source` in a temporary file, removed afterwards: translated
+    with `options`, or with None as it is (comments stripped). Memory stays flat."""
+    with tempfile.TemporaryDirectory(prefix="robox-job-") as directory:
+        target = Path(directory) / "job.gcode"
+        summary = None
+        if options is None:
+            strip_file(source, target)
+        else:
+            summary = roboxise_file(source, target, options)
+        digest, lines = hashlib.sha1(), 0
+        with open(target, "rb") as handle:
+            for chunk in read_chunks(handle):
+                digest.update(chunk)
+                lines += chunk.count(b"\r")
+        if not lines:
+            raise ImageError(f"{source}: no G-code commands in the file")
+        yield JobFile(target, target.stat().st_size, lines, digest.hexdigest(), summary)

@@ -9,9 +9,13 @@ and do not stop every command.
 
 from __future__ import annotations
 
+import io
 import time
-from collections.abc import Callable
+from array import array
+from bisect import bisect_left
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import BinaryIO
 
 from robox.errors import RoboxError, UsageError
 from robox.formats import eeprom as eeprom_format
@@ -37,13 +41,44 @@ PAUSE_STATES = {"0": "running", "1": "pausing", "2": "paused", "3": "resuming",
                 "4": "selfie pause"}
 
 
-def catch_up_lines(data: bytes, chunks: int | None = None) -> set[int]:
-    """The line numbers at which a job reading `data` pauses if its reader catches up
-    with the upload after the first k chunks (k = 1..chunks, default all of them)."""
-    total = len(data) // CHUNK if chunks is None else chunks
-    points, lines = set(), 0
-    for k in range(total):
-        lines += data.count(b"\r", k * CHUNK, (k + 1) * CHUNK)
+class CatchUpPoints:
+    """The line numbers at which a job reading an upload pauses if its reader catches up
+    with the writer after k whole chunks: the complete lines of the first k chunks, for
+    each k stored so far. Kept as a sorted array (4 bytes a chunk), not a set."""
+
+    def __init__(self) -> None:
+        self.counts = array("I")
+
+    def add(self, lines: int) -> None:
+        self.counts.append(lines)
+
+    @property
+    def last(self) -> int:
+        return self.counts[-1] if self.counts else 0
+
+    def __contains__(self, line: object) -> bool:
+        i = bisect_left(self.counts, line)
+        return i < len(self.counts) and self.counts[i] == line
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(sorted(set(self.counts)))
+
+
+def _chunks(source: BinaryIO, first: int = 0) -> Iterator[bytes]:
+    source.seek(first * CHUNK)
+    while block := source.read(CHUNK):
+        yield block
+
+
+def catch_up_lines(data: bytes | BinaryIO, chunks: int | None = None) -> CatchUpPoints:
+    """The catch-up points of an upload of `data` after its first k chunks (k = 1..chunks,
+    default every whole chunk). A file is read a chunk at a time."""
+    source = io.BytesIO(data) if isinstance(data, bytes | bytearray) else data
+    points, lines = CatchUpPoints(), 0
+    for k, block in enumerate(_chunks(source)):
+        if len(block) < CHUNK or (chunks is not None and k >= chunks):
+            break
+        lines += block.count(b"\r")
         points.add(lines)
     return points
 
@@ -246,7 +281,7 @@ class Printer:
         self.ack(bytes([0xF8 + EEPROMS[which]]), f"format {which} EEPROM")
 
     # --------------------------------------------------------- send a job
-    def resume_if_caught_up(self, name: str, catch_up_lines: set[int],
+    def resume_if_caught_up(self, name: str, catch_up_lines: CatchUpPoints,
                             notice: Callable[[str], None] | None = None) -> bool:
         """Resume job `name` if it is paused because its reader caught up with the
         upload: the printer then pauses and stays paused until a host resumes it.
@@ -272,17 +307,20 @@ class Printer:
                    "it is left paused")
         return False
 
-    def send_file(self, data: bytes, file_id: str, job: bool = True, run: bool = True,
-                  resume: bool = False,
+    def send_file(self, data: bytes | BinaryIO, file_id: str, job: bool = True,
+                  run: bool = True, resume: bool = False,
                   progress: Callable[[int, int], None] | None = None,
                   notice: Callable[[str], None] | None = None) -> None:
-        """Store `data` as a file: start, chunks, end. A job starts printing once more
-        than one chunk is stored, and is resumed whenever it pauses because it caught up
-        with the upload (see resume_if_caught_up). With `resume`, continue the upload the
-        printer reports as open instead of starting over."""
+        """Store `data` (bytes, or a seekable binary file read a chunk at a time) as a
+        file: start, chunks, end. A job starts printing once more than one chunk is
+        stored, and is resumed whenever it pauses because it caught up with the upload
+        (see resume_if_caught_up). With `resume`, continue the upload the printer reports
+        as open instead of starting over."""
+        source = io.BytesIO(data) if isinstance(data, bytes | bytearray) else data
+        size = source.seek(0, io.SEEK_END)
         stored = make_id(file_id)
         name = stored.rstrip(b"\0").decode("ascii")
-        chunks = len(data) // CHUNK
+        chunks = size // CHUNK
         first = 0
         if resume:
             open_id, first = self.send_file_report()
@@ -300,24 +338,26 @@ class Printer:
                 noticed.add(message.split(" (")[0])
                 notice(message)
 
-        caught_up_at = catch_up_lines(data, first)
-        lines = max(caught_up_at, default=0)
-        for sequence in range(first, chunks):
-            block = data[sequence * CHUNK : (sequence + 1) * CHUNK]
+        caught_up_at = catch_up_lines(source, first)
+        lines = caught_up_at.last
+        tail = b""
+        for sequence, block in enumerate(_chunks(source, first), first):
+            if len(block) < CHUNK:
+                tail = block
+                break
             self.ack(b"\x91" + f"{sequence:08x}".encode() + block, f"chunk {sequence}")
             lines += block.count(b"\r")
             caught_up_at.add(lines)
             if progress:
-                progress((sequence + 1) * CHUNK, len(data))
+                progress((sequence + 1) * CHUNK, size)
             if watch and not started and sequence >= 1:
                 self.run_job(name)
                 started = True
             elif watch and started and sequence % CATCH_UP_CHECK_CHUNKS == 0:
                 self.resume_if_caught_up(name, caught_up_at, tell)
-        tail = data[chunks * CHUNK :]
         self.ack(b"\x92" + f"{chunks:08x}{len(tail):04x}".encode() + tail, f"end {name}")
         if progress:
-            progress(len(data), len(data))
+            progress(size, size)
         if watch and not started:
             self.run_job(name)
         elif watch:

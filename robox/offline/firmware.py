@@ -23,10 +23,8 @@ def parse_offset(text: str) -> int:
 
 
 def read_input(path: str | os.PathLike) -> bytes:
-    data = fileio.read_input(path)
-    if not data:
-        raise ImageError(f"{path}: the file is empty")
-    return data
+    """A firmware file: a .bin image or its SD text form, at most TEXT_MAX bytes."""
+    return fileio.read_input(path, "a firmware file", limit=fw.TEXT_MAX)
 
 
 def _check_writable(path: str | os.PathLike) -> None:

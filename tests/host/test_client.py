@@ -152,15 +152,20 @@ def virtual():
     return v
 
 
-def test_resume_after_a_disconnect_at_every_chunk(virtual):
+def test_resume_after_a_disconnect_at_every_chunk(virtual, tmp_path):
+    """Interrupted while sending bytes, resumed from the job's file on disk (read a chunk
+    at a time from where the printer says the upload stopped): the card holds the job."""
     job = prepare_job(circle_job(150, heat=False))
+    on_disk = tmp_path / "job.gcode"
+    on_disk.write_bytes(job + b"G4 P1\r")
     chunks = len(job) // 512
     assert chunks >= 5
     clean = VirtualPrinter()
     clean.settle()
-    connect(clean).send_file(job, "resume", run=False)
+    with open(on_disk, "rb") as source:
+        connect(clean).send_file(source, "resume", run=False)
     expected = clean.firmware.file_system.read_committed(b"resume".ljust(16, b"\0"))
-    assert expected == job
+    assert expected == job + b"G4 P1\r"
     for cut in range(chunks):
         v = VirtualPrinter()
         v.settle()
@@ -171,9 +176,10 @@ def test_resume_after_a_disconnect_at_every_chunk(virtual):
                 v.usb.disconnect()
 
         with pytest.raises(Disconnected):
-            printer.send_file(job, "resume", run=False, progress=progress)
+            printer.send_file(on_disk.read_bytes(), "resume", run=False, progress=progress)
         v.usb.connect()
-        connect(v).send_file(job, "resume", run=False, resume=True)
+        with open(on_disk, "rb") as source:
+            connect(v).send_file(source, "resume", run=False, resume=True)
         stored = v.firmware.file_system.read_committed(b"resume".ljust(16, b"\0"))
         assert stored == expected, f"cut after chunk {cut}"
 
