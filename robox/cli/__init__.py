@@ -10,7 +10,7 @@ from robox import __version__
 from robox.cli.common import RoboxGroup
 from robox.cli.eeprom import eeprom
 from robox.cli.firmware import firmware
-from robox.cli.gcode import roboxise_cmd
+from robox.cli.gcode import roboxise_cmd, simulate_cmd
 from robox.cli.printer import COMMANDS
 from robox.cli.sdcard import sdcard
 from robox.cli.sim import sim
@@ -33,6 +33,7 @@ cli.add_command(eeprom)
 cli.add_command(firmware)
 cli.add_command(sim)
 cli.add_command(roboxise_cmd)
+cli.add_command(simulate_cmd)
 for command in COMMANDS:
     cli.add_command(command)
 

@@ -9,7 +9,7 @@ import click
 
 from robox.cli.common import EXIT_PROBLEM, emit_json, json_option
 from robox.errors import UsageError
-from robox.fileio import write_atomically
+from robox.fileio import open_input, write_atomically
 from robox.offline import sdcard as images
 
 
@@ -67,8 +67,8 @@ def put_cmd(image: str, file: str, file_id: str | None, job: bool, as_json: bool
         file_id = Path(file).name[:16]
         if not file_id.isascii():
             raise UsageError(f"{file}: the name is not ASCII; give an id with --id")
-    data = Path(file).read_bytes()
-    result = images.put_file(image, data, file_id, job)
+    with open_input(file, "a file to store") as source:
+        result = images.put_stream(image, source, file_id, job)
     if as_json:
         emit_json(result)
         return

@@ -53,6 +53,9 @@ f32 = float32
 class Position:
     def __init__(self, firmware):
         self.fw = firmware
+        #: Called with each queued move's per-axis distances once the position has taken
+        #: them in (an observer outside the firmware, such as `simulate`; None: nobody).
+        self.on_move = None
 
     def initialise(self) -> None:
         self.motion = self.fw.motion
@@ -143,6 +146,8 @@ class Position:
         yield from self.motion.add_block(feed_rate, speed_limit, check_z_top, moves)
         for i in range(6):
             pos[i] = f32(pos[i] + moves[i])
+        if self.on_move is not None:
+            self.on_move(moves)
 
     def move(self, line: Line, rapid: bool = False) -> Iterator[Wait]:
         """G0/G1 (do_g0_g1)."""

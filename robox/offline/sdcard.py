@@ -9,10 +9,12 @@ virtual printer) would handle the card. Inspection opens the image read-only:
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import re
 from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 from robox.errors import ImageError, NotFoundError, RoboxError, UsageError
 from robox.fileio import replacing
@@ -190,31 +192,39 @@ def get_file(path: str | os.PathLike, file_id: str) -> bytes:
 
 def put_file(path: str | os.PathLike, data: bytes, file_id: str, job: bool) -> dict:
     """Store `data` as a printer receives a file: start, 512-byte chunks, end."""
+    return put_stream(path, io.BytesIO(data), file_id, job)
+
+
+def put_stream(path: str | os.PathLike, source: BinaryIO, file_id: str, job: bool) -> dict:
+    """Store what `source` (a seekable binary file) holds, read a chunk at a time, as a
+    printer receives a file."""
     stored = make_id(file_id)
-    if not data:
+    length = source.seek(0, io.SEEK_END)
+    source.seek(0)
+    if not length:
         raise RoboxError("the file is empty; a printer does not keep zero-length files")
     with open_card(path, writable=True) as card:
         largest = (card.capacity - 2) * BLOCK_SIZE
-        if len(data) > largest:
-            raise ImageError(f"the file is {len(data)} bytes; the largest file this card "
+        if length > largest:
+            raise ImageError(f"the file is {length} bytes; the largest file this card "
                              f"holds is {largest} bytes")
         _mounted(path, card)  # refuse a card a printer would format
         errors = ErrorFlags()
         fs = FileSystem(card, errors)
         before = fs.file_list()
-        chunks = len(data) // BLOCK_SIZE
+        chunks = length // BLOCK_SIZE
         ok = fs.start_write_file(stored, job)
         for sequence in range(chunks):
             if not ok:
                 break
-            ok = fs.write_chunk(sequence, data[sequence * BLOCK_SIZE : (sequence + 1) * BLOCK_SIZE])
+            ok = fs.write_chunk(sequence, source.read(BLOCK_SIZE))
         if ok:
-            ok = fs.end_write_file(chunks, data[chunks * BLOCK_SIZE :])
+            ok = fs.end_write_file(chunks, source.read())
         if not ok or errors.bits:
             raise _fs_errors(errors, f"{path}: storing the file failed")
         after = fs.file_list()
         dropped = [id_text(i) for i in before if i not in after]
-        return {"image": str(path), "id": id_text(stored), "job": job, "length": len(data),
+        return {"image": str(path), "id": id_text(stored), "job": job, "length": length,
                 "dropped": dropped}
 
 

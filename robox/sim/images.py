@@ -49,14 +49,16 @@ def new_unique_id() -> bytes:
     return b"RBXSIM" + os.urandom(5).hex().upper().encode()
 
 
-def head_eeprom(calibrated: bool = False) -> bytes:
-    """A single-material head. `calibrated`: as a head leaves calibration, with the
-    valve's B offsets measured (nozzle 0 opens at +0.65, nozzle 1 at -0.70 past the B
-    switch) and the reel's PLA as the material it last melted, so that T0/T1 find their
-    needle and a job away from a host asks for no nozzle flush. Uncalibrated (offsets
-    0: T0/T1 raise B_STUCK) is the head the conformance recordings start with."""
+def head_eeprom(calibrated: bool = False, type_code: str = "RBX01-SM") -> bytes:
+    """A head of `type_code` (by default a single-material one).
+
+    `calibrated`: as a head leaves calibration, with the valve's B offsets measured
+    (nozzle 0 opens at +0.65, nozzle 1 at -0.70 past the B switch) and the reel's PLA
+    as the material it last melted, so that T0/T1 find their needle and a job away
+    from a host asks for no nozzle flush. Uncalibrated (offsets 0: T0/T1 raise
+    B_STUCK) is the head the conformance recordings start with."""
     data = bytearray(fmt.DATA_SIZE)
-    fields = [("type_code", "RBX01-SM"), ("unique_id", "RBXSIMHEAD0001"),
+    fields = [("type_code", type_code), ("unique_id", "RBXSIMHEAD0001"),
               ("max_temperature", "300"), ("thermistor_beta", "3960"),
               ("thermistor_tcal", "1.0"), ("head_hours", "0")]
     if calibrated:
@@ -68,14 +70,14 @@ def head_eeprom(calibrated: bool = False) -> bytes:
     return fmt.chip_image(bytes(data))
 
 
-def reel_eeprom(remaining_mm: float = 240000.0) -> bytes:
-    """A reel of 1.75 mm PLA with 240 m of filament."""
+def reel_eeprom(remaining_mm: float = 240000.0, diameter_mm: float = 1.75) -> bytes:
+    """A reel of PLA (by default 1.75 mm, with 240 m of filament)."""
     data = bytearray(fmt.DATA_SIZE)
     for name, value in (("filament_id", "RBX-PLA-SIM"), ("display_colour", "FFFFFF"),
                         ("first_layer_nozzle_temperature", "210"),
                         ("nozzle_temperature", "210"), ("first_layer_bed_temperature", "60"),
                         ("bed_temperature", "55"), ("ambient_temperature", "35"),
-                        ("filament_diameter", "1.75"), ("filament_multiplier", "1.0"),
+                        ("filament_diameter", repr(diameter_mm)), ("filament_multiplier", "1.0"),
                         ("feed_rate_multiplier", "1.0"), ("friendly_name", "Robox PLA White"),
                         ("material_type", "P"), ("remaining_filament", repr(remaining_mm))):
         fmt.set_field(data, "reel", name, value)

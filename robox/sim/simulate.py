@@ -1,0 +1,324 @@
+"""A job printed offline on a fresh virtual printer, and what the printing did.
+
+The job (a slicer's file is translated first, as send-job would) is stored on
+a card sized to it, as a printer stores an upload, and run with the run-job
+command on a printer with the chosen head and full reels. A host asks for the
+error report every few simulated seconds, as send-job --wait does, so the
+printer counts a host as connected. While it prints:
+
+- every move the position object queues is watched (Position.on_move): the
+  job-frame coordinates of extruding moves (the extent, and moves outside the
+  build plate), moves whose X or Y the firmware clamps to the axes' travel,
+  and filament pushed while the valve of a head that has one is shut;
+- the thermistors' readings give the peak temperatures;
+- a pause the job makes itself (M1) is resumed and noted; a pause an error
+  makes ends the simulation, as it would stop the print.
+
+Volumes are the filament the position object queued (signed: retractions
+count back), in cubic millimetres of the reel's diameter and multiplier.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from robox.errors import RoboxError, UsageError
+from robox.fileio import write_atomically
+from robox.formats.protocol import PAUSE_MASK_CONNECTED, error_bits, error_names, reply_length
+from robox.formats.sdcard import BLOCK_SIZE, make_id
+from robox.gcode import JobFile, Options, head_kind, job_file
+from robox.gcode.files import inspect
+from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
+from robox.hardware.machine import B, D, E, X, Y, Z
+from robox.offline import sdcard as card_images
+from robox.sim import images
+from robox.sim.printer import CARD_SIZE, VirtualPrinter, create_state
+
+#: The build plate, in the job's frame (its origin at the plate's front left corner).
+BED_MM = (210.0, 150.0)
+#: A valve opened less than this (of 0..1) counts as shut.
+VALVE_SHUT = 0.05
+#: Simulated seconds between the host's error reports.
+POLL_S = 2.0
+#: A job still printing after this much simulated time is given up.
+MAX_PRINT_S = 7 * 24 * 3600.0
+JOB_ID = "simulated"
+EPSILON_MM = 1e-3
+HEATERS = ("nozzle0", "nozzle1", "bed", "ambient")
+
+
+@dataclass
+class Setup:
+    """The virtual printer and the translation a simulation uses."""
+
+    head: str = HEAD_DEFAULT
+    filament_diameter: float = DEFAULT_DIAMETER
+    remaining_m: tuple[float, float] = (240.0, 240.0)  # on reel 0, reel 1
+    nozzle: int | None = None
+    macros: Path | None = None
+    raw: bool = False  # run the file as it is, even a slicer's
+
+
+@dataclass
+class Watch:
+    """What the queued moves did, seen from outside the firmware."""
+
+    fw: object
+    has_valve: bool
+    low: list[float] = field(default_factory=lambda: [math.inf] * 3)
+    high: list[float] = field(default_factory=lambda: [-math.inf] * 3)
+    outside_lines: list[int] = field(default_factory=list)
+    clamped_lines: list[int] = field(default_factory=list)
+    shut_lines: list[int] = field(default_factory=list)
+    shut_mm: list[float] = field(default_factory=lambda: [0.0, 0.0])  # filament, per reel
+    asked: list[float] = field(default_factory=lambda: [math.nan, math.nan])  # X, Y wanted
+
+    def attach(self) -> None:
+        self.fw.position.on_move = self.on_move
+
+    @staticmethod
+    def _note(lines: list[int], line: int) -> None:
+        if not lines or lines[-1] != line:
+            lines.append(line)
+
+    def on_move(self, moves: list[float]) -> None:
+        p = self.fw.position
+        line = self.fw.job.line_number
+        dest, off, homed = p.destination, p.tool_offset, p.homing_done
+        for i in (X, Y):
+            wanted = dest[i] + off[i]
+            if homed[i] and wanted != self.asked[i]:  # a new destination on this axis
+                self.asked[i] = wanted
+                if wanted < -EPSILON_MM or wanted > p.pa["travel"]["XY"[i]] + EPSILON_MM:
+                    self._note(self.clamped_lines, line)
+        if moves[E] <= 0.0 and moves[D] <= 0.0:
+            return
+        where = (dest[X], dest[Y], dest[Z])
+        for i in range(3):
+            self.low[i] = min(self.low[i], where[i])
+            self.high[i] = max(self.high[i], where[i])
+        if not (-EPSILON_MM <= where[0] <= BED_MM[0] + EPSILON_MM
+                and -EPSILON_MM <= where[1] <= BED_MM[1] + EPSILON_MM):
+            self._note(self.outside_lines, line)
+        if self.has_valve and (not homed[B] or abs(p.position[B]) < VALVE_SHUT):
+            self._note(self.shut_lines, line)
+            for n, axis in enumerate((E, D)):
+                self.shut_mm[n] += max(0.0, moves[axis])
+
+
+@dataclass
+class Report:
+    file: str
+    head: str
+    translation: dict | None
+    lines: int
+    lines_run: int = 0
+    completed: bool = False
+    print_time_s: float = 0.0
+    extruders: dict = field(default_factory=dict)
+    peak_c: dict = field(default_factory=dict)
+    extent_mm: dict | None = None
+    warnings: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"file": self.file, "head": self.head, "translation": self.translation,
+                "lines": self.lines, "lines_run": self.lines_run,
+                "completed": self.completed, "print_time_s": round(self.print_time_s, 1),
+                "extruders": self.extruders, "peak_temperatures_c": self.peak_c,
+                "extent_mm": self.extent_mm, "warnings": self.warnings,
+                "errors": self.errors}
+
+
+def _area(diameter: float) -> float:
+    return math.pi * diameter * diameter / 4.0
+
+
+def _lines_text(lines: list[int]) -> str:
+    shown = ", ".join(str(n) for n in lines[:5])
+    return f"line{'s' if len(lines) > 1 else ''} {shown}" + \
+        (f" and {len(lines) - 5} more" if len(lines) > 5 else "")
+
+
+class Host:
+    """Frames to the virtual printer's USB link, read back whole."""
+
+    def __init__(self, virtual: VirtualPrinter):
+        self.virtual = virtual
+        self.usb = virtual.usb
+
+    def transact(self, frame: bytes) -> bytes:
+        self.usb.host_write(frame)
+        reply = b""
+        while True:
+            self.virtual.run_until(lambda: self.usb.reply_waiting > 0, 10.0,
+                                   between_lines=False)
+            if not self.usb.reply_waiting:
+                raise RoboxError(f"the virtual printer did not answer {frame[:1].hex()}")
+            reply += self.usb.host_read(64)
+            length = reply_length(reply)
+            if length is not None and len(reply) >= length:
+                return reply
+
+    def errors(self) -> int:
+        return error_bits(self.transact(b"\xb3"))
+
+
+def _card_blocks(job: JobFile) -> int:
+    """A card as big as a printer's usual one, or big enough for the job."""
+    least = card_images.parse_size(CARD_SIZE) // BLOCK_SIZE
+    return max(least, job.size // BLOCK_SIZE + 4096)
+
+
+def _make_printer(state: Path, setup: Setup, kind: str, job: JobFile) -> VirtualPrinter:
+    write_atomically(state / "head.eeprom",
+                     images.head_eeprom(calibrated=True, type_code=setup.head))
+    for n in range(2 if kind == "dual" else 1):
+        write_atomically(state / f"reel{n}.eeprom",
+                         images.reel_eeprom(setup.remaining_m[n] * 1000.0,
+                                            setup.filament_diameter))
+    card = state / "sdcard.img"
+    card_images.format_image(card, _card_blocks(job))
+    with open(job.path, "rb") as source:
+        card_images.put_stream(card, source, JOB_ID, job=True)
+    create_state(state)  # the flash
+    virtual = VirtualPrinter(state)
+    virtual.settle()
+    return virtual
+
+
+@contextlib.contextmanager
+def _prepared(source: str | os.PathLike, setup: Setup, kind: str
+              ) -> Iterator[tuple[JobFile, VirtualPrinter]]:
+    detected = inspect(source)
+    options = None
+    if not setup.raw and detected.from_slicer:
+        options = Options(filament_diameter=(setup.filament_diameter,) * 2, head=setup.head,
+                          nozzle=setup.nozzle, macros=setup.macros)
+    with job_file(source, options) as job, \
+            tempfile.TemporaryDirectory(prefix="robox-simulate-") as state:
+        virtual = _make_printer(Path(state), setup, kind, job)
+        try:
+            yield job, virtual
+        finally:
+            virtual.close()
+
+
+def simulate(source: str | os.PathLike, setup: Setup,
+             progress: Callable[[int, int], None] | None = None) -> Report:
+    """Print `source` on a fresh virtual printer; what it did. `progress(lines, total)`
+    hears of the job's line number as it goes."""
+    if any(m < 0 for m in setup.remaining_m):
+        raise UsageError("the filament remaining on a reel cannot be negative")
+    kind = head_kind(setup.head)
+    with _prepared(source, setup, kind) as (job, virtual):
+        fw = virtual.firmware
+        report = Report(str(source), setup.head.strip().upper(),
+                        job.translation.as_dict() if job.translation else None, job.lines)
+        _print(virtual, Host(virtual), Watch(fw, kind != "plain"), report, progress, setup,
+               kind)
+    return report
+
+
+def _print(virtual: VirtualPrinter, host: Host, watch: Watch, report: Report,
+           progress: Callable[[int, int], None] | None, setup: Setup, kind: str) -> None:
+    fw = virtual.firmware
+    peak = dict.fromkeys(HEATERS, -math.inf)
+    heaters = fw.hw.machine.heaters
+    latched = host.errors()
+    watch.attach()
+    extruded = list(fw.position.extruded_mm)
+    started = fw.clock.now
+    finished = fw.job.jobs_completed
+    host.transact(b"\x94" + make_id(JOB_ID))
+    pauses: list[int] = []
+    reached = [0]
+
+    def sample() -> bool:
+        for name in HEATERS:
+            reading = heaters[name].temperature
+            if reading > peak[name]:
+                peak[name] = reading
+        job = fw.job
+        reached[0] = max(reached[0], job.line_number)
+        return not job.running or bool(job.pause)
+
+    while True:
+        virtual.run_until(sample, POLL_S, between_lines=False)
+        if fw.position.on_move is None:  # the printer was reset: a new position object
+            watch.attach()
+        bits = host.errors()
+        job = fw.job
+        if progress:
+            progress(job.line_number if job.running else report.lines, report.lines)
+        if not job.running:
+            report.completed = job.jobs_completed > finished
+            if not report.completed:
+                report.errors.append(f"the job was aborted at line {reached[0]}")
+            break
+        if fw.clock.now - started > MAX_PRINT_S:
+            report.errors.append(f"still printing after {MAX_PRINT_S / 3600:.0f} hours "
+                                 f"(line {job.line_number}); given up")
+            break
+        if job.pause:
+            stopping = bits & PAUSE_MASK_CONNECTED & ~latched
+            if stopping:
+                report.errors.append(f"the printer paused the job at line {job.line_number}"
+                                     f": {', '.join(error_names(stopping))}")
+                break
+            pauses.append(job.line_number)
+            host.transact(b"\x980")
+    report.print_time_s = fw.clock.now - started
+    report.lines_run = report.lines if report.completed else reached[0]
+    report.peak_c = {name: round(value, 1) for name, value in peak.items()}
+    bits = host.errors() & ~latched
+    report.errors += [f"the printer reports {name}" for name in error_names(bits)]
+    _volumes(fw, watch, report, extruded, setup, kind)
+    _warnings(watch, report, pauses)
+
+
+def _volumes(fw, watch: Watch, report: Report, extruded: list[float], setup: Setup,
+             kind: str) -> None:
+    p = fw.position
+    for n, (name, reel) in enumerate((("E", "reel0"), ("D", "reel1"))):
+        mm = p.extruded_mm[n] - extruded[n]
+        if kind != "dual" and n == 1 and not mm:
+            continue
+        area = _area(p.diameter[n]) / (p.multiplier[n] or 1.0)
+        report.extruders[name] = {
+            "reel": reel, "filament_m": round(mm / 1000.0, 3), "mm3": round(mm * area, 1),
+            "diameter_mm": round(p.diameter[n], 3),
+            "reel_remaining_m": setup.remaining_m[n] if kind == "dual" or n == 0 else None}
+        if watch.shut_mm[n] > 0.0:
+            report.warnings.append(
+                f"{watch.shut_mm[n] * area:.1f} mm3 pushed into nozzle of extruder {name} "
+                f"with the valve shut ({_lines_text(watch.shut_lines)})")
+        remaining = report.extruders[name]["reel_remaining_m"]
+        if remaining is not None and mm / 1000.0 > remaining:
+            report.warnings.append(
+                f"extruder {name} needs {mm / 1000.0:.2f} m of filament; {reel} holds "
+                f"{remaining:.2f} m: it runs out")
+    if watch.low[0] <= watch.high[0]:
+        report.extent_mm = {axis: [round(watch.low[i], 3), round(watch.high[i], 3)]
+                            for i, axis in enumerate("XYZ")}
+
+
+def _warnings(watch: Watch, report: Report, pauses: list[int]) -> None:
+    if watch.outside_lines:
+        ext = report.extent_mm or {}
+        report.warnings.append(
+            f"extrusion outside the {BED_MM[0]:.0f} x {BED_MM[1]:.0f} mm build plate (X "
+            f"{ext['X'][0]:.1f}..{ext['X'][1]:.1f}, Y {ext['Y'][0]:.1f}..{ext['Y'][1]:.1f}; "
+            f"{_lines_text(watch.outside_lines)})")
+    if watch.clamped_lines:
+        report.warnings.append(
+            "moves beyond the axes' travel, stopped at its end "
+            f"({_lines_text(watch.clamped_lines)})")
+    if pauses:
+        report.warnings.append(f"the job pauses itself ({_lines_text(pauses)}); resumed")
