@@ -12,6 +12,16 @@ from robox.errors import UsageError
 from robox.gcode import Options, roboxise_file
 from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
 
+nozzle_option = click.option(
+    "--nozzle", type=click.IntRange(0, 1),
+    help="Single-material heads: nozzle 0 or 1 throughout (default: from the slicer's "
+         "nozzle diameter, 0 below 0.6 mm, and per feature from the slicer's ;WIDTH: "
+         "marks where it writes them).")
+macros_option = click.option(
+    "--macros", type=click.Path(file_okay=False, exists=True, path_type=Path),
+    help="Directory of AutoMaker-style macros (NAME#HEAD#N0.gcode ...) for Macro:NAME "
+         "lines.")
+
 
 @click.command("roboxise")
 @click.argument("source", metavar="IN", type=click.Path(dir_okay=False, readable=False))
@@ -21,12 +31,8 @@ from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
               default=DEFAULT_DIAMETER, show_default=True, help="mm, for E in mm of filament.")
 @click.option("--head", default=HEAD_DEFAULT, show_default=True,
               help="The head's type code (RBX01-SM, RBX01-S2, RBX01-DM, RBXDV-S1, RX...).")
-@click.option("--nozzle", type=click.IntRange(0, 1),
-              help="Single-material heads: nozzle 0 or 1 (default: from the slicer's nozzle "
-                   "diameter, 0 below 0.6 mm).")
-@click.option("--macros", type=click.Path(file_okay=False, exists=True, path_type=Path),
-              help="Directory of AutoMaker-style macros (NAME#HEAD#N0.gcode ...) for "
-                   "Macro:NAME lines.")
+@nozzle_option
+@macros_option
 @click.option("--no-sequences", is_flag=True,
               help="Leave out the start and end sequences (home, heat, level, purge; park, "
                    "heaters off, door unlock).")
@@ -54,7 +60,9 @@ def roboxise_cmd(source: str, target: str, filament_diameter: float, head: str,
     if not summary.passthrough:
         click.echo(f"valve openings: {summary.valve_cycles}; retractions: "
                    f"{summary.retractions}; nozzle: "
-                   f"{'by tool' if summary.nozzle is None else summary.nozzle}")
+                   f"{'by tool' if summary.nozzle is None else summary.nozzle}"
+                   + (f" first, {summary.nozzle_changes} changes by extrusion width"
+                      if summary.nozzle_changes else ""))
     if summary.macros:
         click.echo(f"macros expanded: {summary.macros}")
     dropped = ", ".join(f"{code} x{n}" for code, n in sorted(summary.dropped.items()))
@@ -77,11 +85,8 @@ def _duration(seconds: float) -> str:
               multiple=True, metavar="METRES",
               help="Filament left on the reels (default 240 m each); give it twice for "
                    "reels 0 and 1 of a dual-material head.")
-@click.option("--nozzle", type=click.IntRange(0, 1),
-              help="Single-material heads: nozzle 0 or 1 (default: from the slicer's nozzle "
-                   "diameter).")
-@click.option("--macros", type=click.Path(file_okay=False, exists=True, path_type=Path),
-              help="Directory of AutoMaker-style macros for Macro:NAME lines.")
+@nozzle_option
+@macros_option
 @click.option("--raw", is_flag=True, help="Run FILE as it is, without translating a "
                                           "slicer's G-code.")
 @json_option

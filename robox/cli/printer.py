@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from robox.cli.common import emit_json, json_option
+from robox.cli.gcode import macros_option, nozzle_option
 from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.firmware import image_revision
 from robox.formats.protocol import error_names
@@ -101,11 +102,8 @@ def files_cmd(ctx, as_json: bool) -> None:
                                           "translating a slicer's G-code.")
 @click.option("--filament-diameter", type=click.FloatRange(0.5, 5.0),
               help="mm; default: from the printer's reel, else 1.75.")
-@click.option("--nozzle", type=click.IntRange(0, 1),
-              help="Single-material heads: print with nozzle 0 or 1 (default: from the "
-                   "slicer's nozzle diameter).")
-@click.option("--macros", type=click.Path(file_okay=False, exists=True, path_type=Path),
-              help="Directory of AutoMaker-style macros for Macro:NAME lines.")
+@nozzle_option
+@macros_option
 @json_option
 @click.pass_context
 def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, raw: bool,

@@ -14,7 +14,12 @@ What a Robox reads differently from the Marlin-style G-code slicers write
   extrusion.
 - T0/T1 select a nozzle (its valve and offsets), not an extruder. On a dual-material
   head, extruder E feeds nozzle 1 and D feeds nozzle 0 (position.c); the slicer's tool
-  0 is E, tool 1 is D.
+  0 is E, tool 1 is D. A single-material head has a fine nozzle 0 and a wide nozzle 1
+  on one material: the job's nozzle follows the slicer's nozzle diameter, and where
+  the slicer marks each feature's extrusion width (PrusaSlicer's and OrcaSlicer's
+  `;WIDTH:` comments) the nozzle follows the width, as AutoMaker printed perimeters
+  with the fine nozzle and infill with the wide one: the valve shuts, T0/T1 selects
+  the other nozzle, and its valve opens for the next extrusion.
 - Temperatures: M104 S is nozzle 0 and M104 T nozzle 1 (T is not a tool index); M109
   and M190 only wait (their S is ignored); M140 is the bed, M170 the ambient. G28
   homes only the axes it names.
@@ -42,6 +47,8 @@ from robox.gcode.text import code_part, words
 
 DEFAULT_DIAMETER = 1.75
 HEAD_DEFAULT = "RBX01-SM"
+#: A single-material head prints extrusion widths from this up with its wide nozzle 1.
+WIDE_MM = 0.6
 SEQUENCES = Path(__file__).resolve().parent.parent / "data" / "sequences"
 
 SLICERS = (  # (name, pattern in the first comment lines)
@@ -105,6 +112,7 @@ class Summary:
     dropped: Counter = field(default_factory=Counter)
     macros: int = 0
     sequence_mm3: float = 0.0  # the start sequence's purge
+    nozzle_changes: int = 0  # by extrusion width
 
     def as_dict(self) -> dict:
         return {"slicer": self.slicer, "e_mode": self.e_mode,
@@ -113,7 +121,8 @@ class Summary:
                 "volume_mm3": {k: round(v, 3) for k, v in self.volume_mm3.items()},
                 "valve_cycles": self.valve_cycles, "retractions": self.retractions,
                 "dropped": dict(sorted(self.dropped.items())), "macros": self.macros,
-                "sequence_mm3": round(self.sequence_mm3, 3)}
+                "sequence_mm3": round(self.sequence_mm3, 3),
+                "nozzle_changes": self.nozzle_changes}
 
 
 @dataclass
@@ -179,6 +188,14 @@ def _number(text: str, what: str) -> float:
     return value
 
 
+def _width(text: bytes) -> float | None:
+    try:
+        value = float(text.strip())
+    except ValueError:
+        return None
+    return value if math.isfinite(value) and value > 0 else None
+
+
 def _fmt(value: float) -> str:
     text = f"{value:.5f}".rstrip("0").rstrip(".")
     return "0" if text in ("-0", "") else text
@@ -212,6 +229,8 @@ class Translator:
         self._mode_seen = False
         self.nozzle = self._choose_nozzle()
         self.s.nozzle = self.nozzle
+        self.by_width = self.kind == "single" and options.nozzle is None
+        self.width: float | None = None  # the slicer's extrusion width of this feature
         if detected.robox:
             self.s.passthrough = True
             self.s.e_mode = "Robox (mm3, relative)"
@@ -228,7 +247,7 @@ class Translator:
         if self.o.nozzle is not None:
             return self.o.nozzle
         width = self.d.nozzle_diameter
-        return 1 if width is not None and width >= 0.6 else 0
+        return 1 if width is not None and width >= WIDE_MM else 0
 
     def _extruder(self) -> str:
         return "D" if self.kind == "dual" and self.tool == 1 else "E"
@@ -281,6 +300,8 @@ class Translator:
             s.lines_in += 1
             line = code_part(raw)
             if not line:
+                if raw.startswith(b";WIDTH:") and self.by_width:
+                    self.width = _width(raw[7:])
                 continue
             if not line.isascii():
                 raise UsageError(f"line {s.lines_in}: non-ASCII bytes outside a comment")
@@ -452,6 +473,16 @@ class Translator:
         self.tool = tool
         yield f"T{self._tool_nozzle()}".encode()
 
+    def _nozzle_for_width(self) -> Iterator[bytes]:
+        if self.width is None:
+            return
+        wanted = 1 if self.width >= WIDE_MM else 0
+        if wanted != self.nozzle:
+            yield from self._close()
+            self.nozzle = wanted
+            self.s.nozzle_changes += 1
+            yield f"T{wanted}".encode()
+
     def _move(self, code: str, p: dict[str, str]) -> Iterator[bytes]:
         axes = {a: p[a] for a in "XYZ" if a in p}
         for a, v in axes.items():
@@ -495,6 +526,7 @@ class Translator:
                 self.s.volume_mm3[extruder] += owed
             volume -= owed
         if volume > 1e-9:
+            yield from self._nozzle_for_width()
             yield from self._open()
             self.s.volume_mm3[extruder] += volume
             yield f"{head} {extruder}{_fmt(volume)}{feed}".encode()
