@@ -257,14 +257,19 @@ class Motion:
         spu = [pa["steps_per_unit"][a] for a in AXES]
         steps = [0] * 6
         length = 0
+        # An axis that does not move costs nothing below: every float32() of a zero is
+        # zero, and max() with a zero leaves the running value as it was.
         for i in range(5):
-            steps[i] = math.floor(float32(moves[i] * spu[i]) + 0.5)
-            length = max(length, abs(steps[i]))
-        if self.fw.heaters.nozzle_forcing:
-            steps[B] = 64 * math.floor(float32(moves[B] * spu[B]) / 64.0 + 0.5)
-        else:
-            steps[B] = math.floor(float32(moves[B] * spu[B]) + 0.5)
-        length = max(length, abs(steps[B]))
+            if moves[i]:
+                steps[i] = math.floor(float32(moves[i] * spu[i]) + 0.5)
+                length = max(length, abs(steps[i]))
+        if moves[B]:
+            b_steps = float32(moves[B] * spu[B])
+            if self.fw.heaters.nozzle_forcing:
+                steps[B] = 64 * math.floor(b_steps / 64.0 + 0.5)
+            else:
+                steps[B] = math.floor(b_steps + 0.5)
+            length = max(length, abs(steps[B]))
         if length < 1:
             for i in range(6):
                 moves[i] = 0.0
@@ -274,17 +279,21 @@ class Motion:
         blk.end_speed = 0
         blk.check_z_top = check_z_top
         if feed_rate > 0.0:
-            max_speed = [pa["max_speed"][a] for a in AXES]
+            max_speed = pa["max_speed"]
             min_duration = 0.0
             for i in range(6):
-                min_duration = float32(max(min_duration, abs(moves[i]) / max_speed[i]))
+                if moves[i]:
+                    min_duration = float32(max(min_duration,
+                                               abs(moves[i]) / max_speed[AXES[i]]))
             v = 0.0
             for i in range(3):
-                v = float32(v + float32(moves[i] * moves[i]))
+                if moves[i]:
+                    v = float32(v + float32(moves[i] * moves[i]))
             v = float32(math.sqrt(v))
             min_duration = max(min_duration, float32(v / feed_rate))
             for i in range(3, 6):
-                min_duration = float32(max(min_duration, abs(moves[i]) / speed_limit))
+                if moves[i]:
+                    min_duration = float32(max(min_duration, abs(moves[i]) / speed_limit))
             if min_duration > 0.0:
                 speed = min(float32(MAX_SPEED), float32(length) / (SPEED_UNITS * min_duration))
             else:
@@ -293,10 +302,17 @@ class Motion:
         else:
             blk.speed = MIN_SPEED
         movers = []
+        exact = length < 16777216  # whole numbers below 2**24 are floats as they are
+        f32_length = float(length) if exact else float32(length)
         for i in range(6):
-            inc = math.floor(65536.0 * float32(steps[i]) / float32(length))
+            if not steps[i]:
+                blk.inc[i] = 0
+                moves[i] = 0.0
+                continue
+            f32_steps = float(steps[i]) if exact else float32(steps[i])
+            inc = math.floor(65536.0 * f32_steps / f32_length)
             blk.inc[i] = inc
-            product = float32(float32(inc) * float32(length))
+            product = float32(float32(inc) * f32_length)
             moves[i] = float32(math.floor((product + 32768.0) / 65536.0) / spu[i])
             if inc:
                 movers.append(i)
@@ -462,12 +478,12 @@ class Motion:
     def _singles(self, blk: Block, limit: int, cap: int | None) -> None:
         """Interrupts one at a time while the speed ramps, the same arithmetic as
         `_interrupt` in a tight loop, for a block that watches no switch and turns no
-        index wheel; stops once the speed holds for an interrupt (a run may follow), at
-        the block's end, at `limit` or after `cap` interrupts."""
+        index wheel. Nothing the interrupts read changes on the way, so each axis's
+        steps are made at the end, all at once, from its accumulator (as `_batch` does).
+        Stops once the speed holds at the block's cruise speed or the floor (a run may
+        follow), at the block's end, at `limit` or after `cap` interrupts; a speed that
+        holds while the block slows down (the square root's steps) runs on."""
         acc = self.acc
-        inc = blk.inc
-        movers = [(i, inc[i], 1 if inc[i] > 0 else -1) for i in blk.movers]
-        step = self.machine.step
         a = self.pa["acceleration"]
         c = (blk.end_speed * blk.end_speed) >> 4
         top = blk.speed << 12
@@ -479,16 +495,11 @@ class Motion:
         length = blk.length
         count = 0
         cap = length if cap is None else min(cap, length)
+        isqrt = math.isqrt
         while True:
-            for i, d, sign in movers:
-                v = acc[i]
-                w = (v + d) & U32
-                acc[i] = w
-                if (v ^ w) & 0xFFFF0000:
-                    step(i, sign)
             length -= 1
-            v = math.isqrt((((length if length < 0x00800000 else 0x00800000) << 1) * a
-                            + c) & U32) << 14
+            v = isqrt((((length if length < 0x00800000 else 0x00800000) << 1) * a
+                       + c) & U32) << 14
             n = s + (period if period < maxp else maxp) * a
             if v < n:
                 n = v
@@ -496,7 +507,7 @@ class Motion:
                 n = top
             if n < floor_speed:
                 n = floor_speed
-            settled = n == s
+            settled = n == s and n in (top, floor_speed)
             s = n
             period = ((0x10000 << 12) // s) & 0xFFFF
             last = tick
@@ -504,6 +515,12 @@ class Motion:
             count += 1
             if settled or count >= cap or tick > limit:
                 break
+        m = self.machine
+        inc = blk.inc
+        for i in blk.movers:
+            total = (acc[i] & 0xFFFF) + count * inc[i]
+            acc[i] = (acc[i] + count * inc[i]) & U32
+            m.step(i, total >> 16)
         blk.length = length
         self.speed_x4k = s
         self.timer_period = period
