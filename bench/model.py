@@ -2,18 +2,31 @@
 """The firmware model on a real slicer's G-code: upload through the protocol, print to the end.
 
 Usage: python bench/model.py [--quick]
-Needs slic3r on the PATH (Debian: apt-get install slic3r). The model is made
-here (a twisted star tower, written as a binary STL) and sliced with
-volumetric E, as a Robox expects; the G-code is cached in bench/.cache/.
-Prints wall time, G-code lines per second, upload MB/s, and simulated print
-time over wall time. Asserts nothing.
+Needs slic3r on the PATH (Debian: apt-get install slic3r), and PrusaSlicer
+(apt-get install prusa-slicer) for the second part. The model is made here (a
+twisted star tower, written as a binary STL); the G-code is cached in
+bench/.cache/. Two measurements, each beside a trivial Python loop over the
+same file (`for line in f: line.split()`) timed in the same run:
+
+1. the model alone: slic3r's volumetric G-code sent frame by frame over the
+   in-memory USB link and printed to the end (lines/s, upload MB/s, simulated
+   time over wall time);
+2. the whole path a user runs: PrusaSlicer's file through
+   `robox-cli --device sim:DIR send-job FILE --wait` in its own process
+   (translated, uploaded over the protocol, printed to the end, the state
+   saved): lines/s of the slicer's file, the ratio to the trivial loop, peak
+   resident memory.
+
+Asserts nothing.
 """
 
+import json
 import math
 import shutil
 import struct
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -92,6 +105,83 @@ def sliced_gcode(quick: bool, name: str = "tower", extra: tuple = VOLUMETRIC) ->
     return gcode
 
 
+def prusa_gcode(quick: bool) -> Path | None:
+    """The star tower sliced by PrusaSlicer as a user would (cached); None without it."""
+    CACHE.mkdir(parents=True, exist_ok=True)
+    name = "tower-prusa-quick" if quick else "tower-prusa"
+    gcode = CACHE / f"{name}.gcode"
+    if gcode.exists():
+        return gcode
+    if shutil.which("prusa-slicer") is None:
+        return None
+    stl = CACHE / f"{name}.stl"
+    height = 20.0 if quick else 80.0
+    write_stl(stl, star_tower(height, 30.0, 5, math.pi / 2, int(height)))
+    subprocess.run(["prusa-slicer", "--export-gcode", str(stl), "--output", str(gcode),
+                    "--layer-height", "0.2", "--fill-density", "20%", "--perimeters", "3",
+                    "--nozzle-diameter", "0.4", "--filament-diameter", "1.75",
+                    "--temperature", "210", "--bed-temperature", "60", "--center", "105,75"],
+                   check=True, capture_output=True)
+    return gcode
+
+
+def plain_loop_rate(path: Path) -> float:
+    """Lines per second of `for line in f: line.split()` over the file."""
+    start = time.perf_counter()
+    lines = 0
+    with open(path, "rb") as f:
+        for line in f:
+            line.split()
+            lines += 1
+    return lines / (time.perf_counter() - start)
+
+
+PEAK_PROBE = """
+import atexit, runpy, sys
+def peak():
+    with open("/proc/self/status") as status:
+        for line in status:
+            if line.startswith("VmHWM:"):
+                sys.stderr.write("peak-rss-kb " + line.split()[1] + chr(10))
+atexit.register(peak)
+sys.argv = ["robox-cli"] + sys.argv[1:]
+runpy.run_module("robox.cli", run_name="__main__")
+"""
+
+
+def robox_cli(*args: str) -> tuple[bytes, float]:
+    """Run robox-cli with `args` in its own process: its output and its peak resident
+    memory in MB (VmHWM, which counts from the exec: getrusage's maxrss would count the
+    pages of this process the child shared between fork and exec)."""
+    child = subprocess.run([sys.executable, "-c", PEAK_PROBE, *args], cwd=ROOT,
+                           capture_output=True)
+    if child.returncode:
+        raise SystemExit(f"robox-cli {' '.join(args)} failed: {child.stderr.decode()}")
+    kb = int(child.stderr.decode().rsplit("peak-rss-kb ", 1)[1].split()[0])
+    return child.stdout, kb / 1024
+
+
+def whole_path(path: Path) -> None:
+    """robox-cli send-job --wait on a fresh state directory, in its own process."""
+    with open(path, "rb") as f:
+        lines = sum(1 for _ in f)
+    plain = plain_loop_rate(path)
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        out, peak = robox_cli("--device", f"sim:{tmp}/printer", "send-job", str(path),
+                              "--wait", "--json")
+        wall = time.perf_counter() - start
+    summary = json.loads(out)
+    rate = lines / wall
+    print(f"PrusaSlicer G-code {path.name}: {path.stat().st_size / 1e6:.2f} MB, {lines} "
+          "lines, through robox-cli --device sim:DIR send-job --wait")
+    print(f"  whole path: {wall:.2f} s wall, {rate:,.0f} lines/s; trivial loop "
+          f"{plain:,.0f} lines/s; ratio {rate / plain:.4f}")
+    print(f"  simulated print time {summary['simulated_print_time_s'] / 3600:.2f} h; "
+          f"simulated / wall = {summary['simulated_print_time_s'] / wall:,.0f}x; "
+          f"peak RSS {peak:.0f} MB; errors {summary['errors'] or 'none'}")
+
+
 def host_text(raw: bytes) -> bytes:
     """What a host sends: comments and blank lines stripped, each line ended with CR. A
     bare G28 homes nothing on a Robox, so the axes are named, as Robox jobs do."""
@@ -135,11 +225,18 @@ def main() -> None:
           f"{chunks + 1} chunks")
     print(f"  upload (printing meanwhile): {uploaded:.2f} s, {len(job) / 1e6 / uploaded:.2f} MB/s,"
           f" {lines_during_upload} lines printed by its end")
-    print(f"  whole job: {wall:.2f} s wall, {lines / wall:,.0f} G-code lines/s")
+    plain = plain_loop_rate(path)
+    print(f"  whole job: {wall:.2f} s wall, {lines / wall:,.0f} G-code lines/s; trivial loop "
+          f"{plain:,.0f} lines/s; ratio {lines / wall / plain:.4f}")
     print(f"  simulated print time {simulated / 3600:.2f} h; simulated / wall = "
           f"{simulated / wall:,.0f}x")
     print(f"  finished: {('job finished', ident('bench')) in fw.events}; "
           f"filament used {fw.position.extruded_mm[0] / 1000:.2f} m; faults {len(fw.faults)}")
+    prusa = prusa_gcode(quick)
+    if prusa is None:
+        print("PrusaSlicer not found (apt-get install prusa-slicer): whole path not measured")
+    else:
+        whole_path(prusa)
 
 
 if __name__ == "__main__":

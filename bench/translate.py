@@ -12,8 +12,6 @@ file about 50 MB long (the same layers over and over), each in its own process.
 Asserts nothing.
 """
 
-import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -23,7 +21,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from model import sliced_gcode  # noqa: E402
+from model import robox_cli, sliced_gcode  # noqa: E402
 
 from robox.gcode import Options, roboxise_file  # noqa: E402
 
@@ -52,16 +50,6 @@ def main() -> None:
         memory(path)
 
 
-def peak_rss_mb(*args: str) -> float:
-    """Run robox-cli with `args` in its own process; its peak resident memory in MB."""
-    child = subprocess.Popen([sys.executable, "-m", "robox.cli", *args], cwd=ROOT,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(child.pid, 0)
-    if status:
-        raise SystemExit(f"robox-cli {' '.join(args)} failed: {child.stderr.read().decode()}")
-    return usage.ru_maxrss / 1024
-
-
 def memory(path: Path) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         big = Path(tmp) / "big.gcode"
@@ -74,8 +62,8 @@ def memory(path: Path) -> None:
                 out.write(layers)
         for name in (path, big):
             size = name.stat().st_size / 1e6
-            roboxise = peak_rss_mb("roboxise", str(name), "-o", f"{tmp}/out.robox")
-            send = peak_rss_mb("--device", f"sim:{tmp}/printer", "send-job", str(name))
+            _, roboxise = robox_cli("roboxise", str(name), "-o", f"{tmp}/out.robox")
+            _, send = robox_cli("--device", f"sim:{tmp}/printer", "send-job", str(name))
             print(f"  peak RSS on {size:.1f} MB: roboxise {roboxise:.0f} MB, "
                   f"send-job {send:.0f} MB")
 
