@@ -143,6 +143,12 @@ class Eeproms:
                     and state.verified_banks >= 2:
                 continue
             state.last_step = now
+            if state.status == Status.NOT_PRESENT and self.bus.chip(state.index) is None \
+                    and not (state.counter or state.working_bank or state.writing):
+                # an empty socket already given up: the step's read finds no chip and
+                # its no-ack leaves everything as it is
+                state.acked = False
+                continue
             self._step(state)
 
     # ----------------------------------------------------------- one step
