@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from model import robox_cli, sliced_gcode  # noqa: E402
+from model import plain_loop_rate, robox_cli, sliced_gcode  # noqa: E402
 
 from robox.gcode import Options, roboxise_file  # noqa: E402
 
@@ -29,17 +29,13 @@ from robox.gcode import Options, roboxise_file  # noqa: E402
 def main() -> None:
     path = sliced_gcode("--quick" in sys.argv, "tower-user", ())  # E in mm, absolute
     size = path.stat().st_size
-    start = time.perf_counter()
-    lines = 0
-    with open(path, "rb") as f:
-        for line in f:
-            line.split()
-            lines += 1
-    plain = time.perf_counter() - start
+    rate = plain_loop_rate(path)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         summary = roboxise_file(path, Path(tmp) / "job.robox", Options())
         took = time.perf_counter() - start
+    lines = summary.lines_in
+    plain = lines / rate
     print(f"slic3r G-code {path.name}: {size / 1e6:.2f} MB, {lines} lines "
           f"({summary.e_mode} E, {summary.volume_mm3['E']:.0f} mm3, "
           f"{summary.valve_cycles} valve openings)")
