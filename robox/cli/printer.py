@@ -154,22 +154,22 @@ def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
     started = time.monotonic()
     sim = getattr(printer, "virtual", None)
     sim_start = sim.firmware.clock.now if sim else None
-    with open(job.path, "rb") as source, \
-            click.progressbar(length=job.size, label=f"uploading {name}", file=sys.stderr,
-                              hidden=quiet) as bar:
-        sent = [0]
+    with open(job.path, "rb") as source:
+        with click.progressbar(length=job.size, label=f"uploading {name}", file=sys.stderr,
+                               hidden=quiet) as bar:
+            sent = [0]
 
-        def progress(done: int, total: int) -> None:
-            bar.update(done - sent[0])
-            sent[0] = done
+            def progress(done: int, total: int) -> None:
+                bar.update(done - sent[0])
+                sent[0] = done
 
-        try:
-            printer.send_file(source, name, resume=resume, progress=progress,
-                              notice=lambda message: click.echo(message, err=True))
-        except Disconnected:
-            raise RoboxError(f"the printer was disconnected after {sent[0]} of {job.size}"
-                             f" bytes; run the same command with --resume to continue"
-                             ) from None
+            try:
+                printer.send_file(source, name, resume=resume, progress=progress,
+                                  notice=lambda message: click.echo(message, err=True))
+            except Disconnected:
+                raise RoboxError(f"the printer was disconnected after {sent[0]} of "
+                                 f"{job.size} bytes; run the same command with --resume to "
+                                 "continue") from None
         summary = {"id": name, "bytes": job.size, "lines": job.lines}
         if wait:
             _follow(printer, name, job.lines, catch_up_lines(source), quiet)

@@ -297,7 +297,7 @@ def _volumes(fw, watch: Watch, report: Report, extruded: list[float], setup: Set
             "reel_remaining_m": setup.remaining_m[n] if kind == "dual" or n == 0 else None}
         if watch.shut_mm[n] > 0.0:
             report.warnings.append(
-                f"{watch.shut_mm[n] * area:.1f} mm3 pushed into nozzle of extruder {name} "
+                f"{watch.shut_mm[n] * area:.1f} mm3 pushed into the nozzle from extruder {name} "
                 f"with the valve shut ({_lines_text(watch.shut_lines)})")
         remaining = report.extruders[name]["reel_remaining_m"]
         if remaining is not None and mm / 1000.0 > remaining:
