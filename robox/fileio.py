@@ -48,8 +48,6 @@ def read_input(path: str | os.PathLike, what: str = "file", limit: int | None = 
     from robox.errors import ImageError
 
     with open_input(path, what) as handle:
-        if limit is not None and os.fstat(handle.fileno()).st_size > limit:
-            raise ImageError(f"{path}: larger than {what} can be ({limit} bytes)")
         data = handle.read() if limit is None else handle.read(limit + 1)
     if not data and not allow_empty:
         raise ImageError(f"{path}: the file is empty")

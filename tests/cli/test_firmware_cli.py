@@ -204,3 +204,17 @@ def test_mksdimage_missing_input_leaves_no_image(tmp_path):
                 str(tmp_path / "nope"))
     assert done.returncode == 1 and "no such file" in done.stderr
     assert not (tmp_path / "c.img").exists() and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", [["firmware", "verify"], ["eeprom", "show"],
+                                     ["eeprom", "fsck"]])
+def test_a_huge_input_is_refused_by_its_kinds_ceiling(tmp_path, command):
+    """A 1 GiB sparse file: refused after reading at most one byte past the largest a
+    firmware file (256 KiB) or an EEPROM dump (512 bytes) can be; no MemoryError."""
+    from tests.cli.test_sdcard_cli import one_line_error
+
+    huge = tmp_path / "huge"
+    with open(huge, "wb") as f:
+        f.truncate(1 << 30)
+    limit = "262144 bytes" if command[0] == "firmware" else "512 bytes"
+    one_line_error(CliRunner().invoke(cli, [*command, str(huge)]), 1, limit)
