@@ -14,15 +14,17 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from robox.errors import ImageError
+from robox.errors import ImageError, RoboxError
 from robox.fileio import write_atomically
 from robox.firmware.main import Firmware, Hardware
 from robox.formats.eeprom import CHIP_SIZE, EepromIndex
 from robox.formats.firmware import FLASH_SIZE
+from robox.formats.protocol import reply_length
 from robox.hardware.eeprom import EepromBus, EepromChip
 from robox.hardware.flash import Flash
 from robox.hardware.sdcard import SdCard
 from robox.hardware.storage import FileStorage, MemoryStorage
+from robox.hardware.usb import PACKET_SIZE
 from robox.offline import sdcard as card_images
 from robox.sim import images
 
@@ -133,6 +135,23 @@ class VirtualPrinter:
         done = self.firmware.run_until(condition, timeout, between_lines=between_lines)
         self.save_chips()
         return done
+
+    def transact(self, frame: bytes, timeout: float = 10.0) -> bytes:
+        """A host's command frame in at the USB link, and the printer's one whole report
+        out, read as a USB host reads (as soon as it is sent, after any pass)."""
+        usb = self.usb
+        usb.host_write(frame)
+        reply = b""
+        while True:
+            self.run_until(lambda: usb.reply_waiting > 0, timeout, between_lines=False)
+            if not usb.reply_waiting:
+                raise RoboxError(f"the virtual printer did not answer {frame[:1].hex()} "
+                                 f"(got {reply!r})")
+            length = reply_length(reply)
+            reply += usb.host_read(PACKET_SIZE if length is None else length - len(reply))
+            length = reply_length(reply)
+            if length is not None and len(reply) >= length:
+                return reply
 
     def settle(self, timeout: float = 10.0) -> bool:
         """Let background work finish: EEPROM banks rewritten, replies sent."""

@@ -28,9 +28,9 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robox.errors import RoboxError, UsageError
+from robox.errors import UsageError
 from robox.fileio import write_atomically
-from robox.formats.protocol import PAUSE_MASK_CONNECTED, error_bits, error_names, reply_length
+from robox.formats.protocol import PAUSE_MASK_CONNECTED, error_bits, error_names
 from robox.formats.sdcard import BLOCK_SIZE, make_id
 from robox.gcode import JobFile, Options, head_kind, job_file
 from robox.gcode.files import inspect
@@ -146,28 +146,9 @@ def _lines_text(lines: list[int]) -> str:
         (f" and {len(lines) - 5} more" if len(lines) > 5 else "")
 
 
-class Host:
-    """Frames to the virtual printer's USB link, read back whole."""
-
-    def __init__(self, virtual: VirtualPrinter):
-        self.virtual = virtual
-        self.usb = virtual.usb
-
-    def transact(self, frame: bytes) -> bytes:
-        self.usb.host_write(frame)
-        reply = b""
-        while True:
-            self.virtual.run_until(lambda: self.usb.reply_waiting > 0, 10.0,
-                                   between_lines=False)
-            if not self.usb.reply_waiting:
-                raise RoboxError(f"the virtual printer did not answer {frame[:1].hex()}")
-            reply += self.usb.host_read(64)
-            length = reply_length(reply)
-            if length is not None and len(reply) >= length:
-                return reply
-
-    def errors(self) -> int:
-        return error_bits(self.transact(b"\xb3"))
+def _errors(virtual: VirtualPrinter) -> int:
+    """The error report, asked for as a host does (it keeps the host counted)."""
+    return error_bits(virtual.transact(b"\xb3"))
 
 
 def _card_blocks(job: JobFile) -> int:
@@ -221,22 +202,21 @@ def simulate(source: str | os.PathLike, setup: Setup,
         fw = virtual.firmware
         report = Report(str(source), setup.head.strip().upper(),
                         job.translation.as_dict() if job.translation else None, job.lines)
-        _print(virtual, Host(virtual), Watch(fw, kind != "plain"), report, progress, setup,
-               kind)
+        _print(virtual, Watch(fw, kind != "plain"), report, progress, setup, kind)
     return report
 
 
-def _print(virtual: VirtualPrinter, host: Host, watch: Watch, report: Report,
+def _print(virtual: VirtualPrinter, watch: Watch, report: Report,
            progress: Callable[[int, int], None] | None, setup: Setup, kind: str) -> None:
     fw = virtual.firmware
     peak = dict.fromkeys(HEATERS, -math.inf)
     heaters = fw.hw.machine.heaters
-    latched = host.errors()
+    latched = _errors(virtual)
     watch.attach()
     extruded = list(fw.position.extruded_mm)
     started = fw.clock.now
     finished = fw.job.jobs_completed
-    host.transact(b"\x94" + make_id(JOB_ID))
+    virtual.transact(b"\x94" + make_id(JOB_ID))
     pauses: list[int] = []
     reached = [0]
 
@@ -253,7 +233,7 @@ def _print(virtual: VirtualPrinter, host: Host, watch: Watch, report: Report,
         virtual.run_until(sample, POLL_S, between_lines=False)
         if fw.position.on_move is None:  # the printer was reset: a new position object
             watch.attach()
-        bits = host.errors()
+        bits = _errors(virtual)
         job = fw.job
         if progress:
             progress(job.line_number if job.running else report.lines, report.lines)
@@ -273,11 +253,11 @@ def _print(virtual: VirtualPrinter, host: Host, watch: Watch, report: Report,
                                      f": {', '.join(error_names(stopping))}")
                 break
             pauses.append(job.line_number)
-            host.transact(b"\x980")
+            virtual.transact(b"\x980")
     report.print_time_s = fw.clock.now - started
     report.lines_run = report.lines if report.completed else reached[0]
     report.peak_c = {name: round(value, 1) for name, value in peak.items()}
-    bits = host.errors() & ~latched
+    bits = _errors(virtual) & ~latched
     report.errors += [f"the printer reports {name}" for name in error_names(bits)]
     _volumes(fw, watch, report, extruded, setup, kind)
     _warnings(watch, report, pauses)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+from robox.errors import RoboxError
 from robox.formats.protocol import reply_length
 from robox.sim.printer import VirtualPrinter
 
@@ -33,17 +34,12 @@ class Wire:
 
     def raw(self, data: bytes, timeout: float = 10.0) -> bytes:
         """Send bytes; read one complete report (Robox mode)."""
-        self.usb.host_write(data)
-        out = b""
-        while True:
-            self.printer.run_until(lambda: self.usb.reply_waiting > 0, timeout)
-            if not self.usb.reply_waiting:
-                raise AssertionError(f"no reply to {data[:8]!r} (got {out!r})")
-            out += self.usb.host_read(64)
-            length = reply_length(out)
-            if length is not None and len(out) >= length:
-                assert len(out) == length, out
-                return out
+        try:
+            out = self.printer.transact(data, timeout)
+        except RoboxError as exc:
+            raise AssertionError(str(exc)) from None
+        assert len(out) == reply_length(out), out
+        return out
 
     def line(self, text: bytes, timeout: float = 30.0) -> bytes:
         """A Pronterface line; the response up to and including ok."""
