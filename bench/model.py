@@ -231,7 +231,7 @@ def main() -> None:
     print(f"  simulated print time {simulated / 3600:.2f} h; simulated / wall = "
           f"{simulated / wall:,.0f}x")
     print(f"  finished: {('job finished', ident('bench')) in fw.events}; "
-          f"filament used {fw.position.extruded_mm[0] / 1000:.2f} m; faults {len(fw.faults)}")
+          f"filament used {fw.position.extruded_mm[0] / 1000:.2f} m")
     prusa = prusa_gcode(quick)
     if prusa is None:
         print("PrusaSlicer not found (apt-get install prusa-slicer): whole path not measured")

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import math
 import re
-import struct
 
+from robox.firmware.carith import f32
 from robox.formats import float8
 
 LONG_MAX = (1 << 63) - 1
@@ -35,16 +35,7 @@ _FLOAT32_MAX = 3.4028234663852886e38
 _END = re.compile(rb"[\r\n;(\0]")
 
 
-_F32 = struct.Struct("<f")
-_pack_f32, _unpack_f32 = _F32.pack, _F32.unpack
-
-
-def float32(value: float) -> float:
-    """`value` rounded to C float precision (overflow gives infinity, as C does)."""
-    try:
-        return _unpack_f32(_pack_f32(value))[0]
-    except OverflowError:
-        return math.copysign(math.inf, value)
+float32 = f32  # `value` rounded to C float precision (overflow gives infinity, as C does)
 
 
 def report_float(value: float) -> bytes:

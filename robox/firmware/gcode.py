@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from robox.firmware.carith import f32, to_ulong
 from robox.firmware.cline import Line, strtol
 from robox.formats.protocol import ErrorBit
 
@@ -310,10 +311,15 @@ class Job:
                 self.parked = True
 
     def delay_aborting(self, seconds: float) -> Iterator[Wait]:
-        """Wait `seconds` (whole milliseconds of the tick counter), ending early on abort."""
-        if seconds <= 0:
+        """delay_aborting(seconds): (unsigned long)(seconds * 1000) ticks."""
+        yield from self.delay_ticks(to_ulong(seconds * 1000))
+
+    def delay_ticks(self, ticks: int) -> Iterator[Wait]:
+        """delay_aborting_i(): wait `ticks` of the 1 ms counter, ending early on abort.
+        (A negative or NaN time converts to no tick, a huge one to 2**32 - 1.)"""
+        if ticks == 0:
             return
-        end = self.fw.clock.now + int(seconds * 1000) / 1000.0
+        end = self.fw.clock.now + ticks / 1000.0
         while not self.abort_flag and self.fw.clock.now < end:
             yield Wait(until=end)
 
@@ -379,7 +385,8 @@ class Job:
         elif code == 4:
             yield from motion.wait_until_empty()
             if line.has("S"):
-                yield from self.delay_aborting(line.float("S"))
+                # the float S times the int 1000 is a float product
+                yield from self.delay_ticks(to_ulong(f32(line.float("S") * 1000)))
             elif line.has("P"):
                 yield from self.delay_aborting(line.float("P") / 1000.0)
         elif code == 28:

@@ -12,7 +12,6 @@ counted, not run (docs/firmware-model.md, "The loop").
 
 from __future__ import annotations
 
-import traceback
 from dataclasses import dataclass, field
 
 from robox.firmware.command import Command
@@ -66,7 +65,6 @@ class Firmware:
         self.hw = hw
         self.clock = hw.clock
         self.resets = 0
-        self.faults: list[str] = []
         self.power_up()
 
     # ------------------------------------------------------------ registry
@@ -219,15 +217,10 @@ class Firmware:
         return condition()
 
     # ------------------------------------------------------------- debug
-    def note_fault(self, exc: BaseException) -> None:
-        """A bug in the model: recorded, never raised into the loop."""
-        self.faults.append("".join(traceback.format_exception_only(type(exc), exc)).strip())
-
     def debug_text(self) -> str:
         job = self.job
         return (f"robox model {self.revision}; t={self.clock.now:.3f}s; lines "
-                f"{job.lines_executed}; jobs {job.jobs_completed}; resets {self.resets}; "
-                f"faults {len(self.faults)}")
+                f"{job.lines_executed}; jobs {job.jobs_completed}; resets {self.resets}")
 
     def board_test_text(self) -> str:
         m = self.hw.machine

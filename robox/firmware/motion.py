@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 
+from robox.firmware.carith import cmax, cmin, div, floor_long, to_ulong, to_ushort, wrap_long
 from robox.firmware.cline import float32
 from robox.firmware.gcode import Wait, wait_for
 from robox.formats.protocol import ErrorBit
@@ -259,17 +260,10 @@ class Motion:
         length = 0
         # An axis that does not move costs nothing below: every float32() of a zero is
         # zero, and max() with a zero leaves the running value as it was.
-        for i in range(5):
+        for i in range(6):
             if moves[i]:
-                steps[i] = math.floor(float32(moves[i] * spu[i]) + 0.5)
+                steps[i] = self.steps_for(i, moves[i], spu[i])
                 length = max(length, abs(steps[i]))
-        if moves[B]:
-            b_steps = float32(moves[B] * spu[B])
-            if self.fw.heaters.nozzle_forcing:
-                steps[B] = 64 * math.floor(b_steps / 64.0 + 0.5)
-            else:
-                steps[B] = math.floor(b_steps + 0.5)
-            length = max(length, abs(steps[B]))
         if length < 1:
             for i in range(6):
                 moves[i] = 0.0
@@ -279,26 +273,30 @@ class Motion:
         blk.end_speed = 0
         blk.check_z_top = check_z_top
         if feed_rate > 0.0:
-            max_speed = pa["max_speed"]
-            min_duration = 0.0
-            for i in range(6):
-                if moves[i]:
-                    min_duration = float32(max(min_duration,
-                                               abs(moves[i]) / max_speed[AXES[i]]))
-            v = 0.0
-            for i in range(3):
-                if moves[i]:
-                    v = float32(v + float32(moves[i] * moves[i]))
-            v = float32(math.sqrt(v))
-            min_duration = max(min_duration, float32(v / feed_rate))
-            for i in range(3, 6):
-                if moves[i]:
-                    min_duration = float32(max(min_duration, abs(moves[i]) / speed_limit))
-            if min_duration > 0.0:
-                speed = min(float32(MAX_SPEED), float32(length) / (SPEED_UNITS * min_duration))
+            max_speed = [pa["max_speed"][a] for a in AXES]
+            if (speed_limit > 0.0 and math.isfinite(sum(moves))
+                    and all(m > 0.0 for m in max_speed)):
+                min_duration = 0.0
+                for i in range(6):
+                    if moves[i]:
+                        min_duration = float32(max(min_duration, abs(moves[i]) / max_speed[i]))
+                v = 0.0
+                for i in range(3):
+                    if moves[i]:
+                        v = float32(v + float32(moves[i] * moves[i]))
+                v = float32(math.sqrt(v))
+                min_duration = max(min_duration, float32(v / feed_rate))
+                for i in range(3, 6):
+                    if moves[i]:
+                        min_duration = float32(max(min_duration, abs(moves[i]) / speed_limit))
+                if min_duration > 0.0:
+                    speed = min(float32(MAX_SPEED),
+                                float32(length) / (SPEED_UNITS * min_duration))
+                else:
+                    speed = float(MAX_SPEED)
             else:
-                speed = float(MAX_SPEED)
-            blk.speed = max(MIN_SPEED, int(speed) & 0xFFFF)
+                speed = self._speed_exactly(length, feed_rate, speed_limit, moves, max_speed)
+            blk.speed = max(MIN_SPEED, to_ushort(speed))
         else:
             blk.speed = MIN_SPEED
         movers = []
@@ -307,13 +305,14 @@ class Motion:
         for i in range(6):
             if not steps[i]:
                 blk.inc[i] = 0
-                moves[i] = 0.0
+                # floor(0.5) / steps per unit: 0, unless M92 made that 0 or NaN
+                moves[i] = 0.0 if spu[i] > 0.0 else float32(div(0.0, spu[i]))
                 continue
             f32_steps = float(steps[i]) if exact else float32(steps[i])
             inc = math.floor(65536.0 * f32_steps / f32_length)
             blk.inc[i] = inc
             product = float32(float32(inc) * f32_length)
-            moves[i] = float32(math.floor((product + 32768.0) / 65536.0) / spu[i])
+            moves[i] = float32(div(math.floor((product + 32768.0) / 65536.0), spu[i]))
             if inc:
                 movers.append(i)
                 self._make_motor_active(i)
@@ -332,6 +331,36 @@ class Motion:
             b = prev
             n -= 1
         yield from wait_for(self.ready_for_more, READY_WAIT)
+
+    def steps_for(self, axis: int, move: float, spu: float | None = None) -> int:
+        """The whole steps add_block gives `move` mm on `axis` (on B in chunks of 64
+        while the nozzle heaters are forced off)."""
+        if spu is None:
+            spu = self.pa["steps_per_unit"][AXES[axis]]
+        v = float32(move * spu)
+        if axis == B and self.fw.heaters.nozzle_forcing:
+            return wrap_long(64 * floor_long(v / 64.0 + 0.5))
+        v += 0.5
+        return math.floor(v) if -2147483648.0 < v < 2147483648.0 else floor_long(v)
+
+    @staticmethod
+    def _speed_exactly(length: int, feed_rate: float, speed_limit: float, moves: list[float],
+                       max_speed: list[float]) -> float:
+        """The block's speed before the cast, in add_block_to_buffer's own order, for
+        when a number is zero, negative, infinite or NaN (a 0/0 or a NaN met by the
+        firmware's max() can decide the result, and a zero's sign can)."""
+        min_duration = 0.0
+        for i in range(6):
+            min_duration = cmax(min_duration, float32(div(abs(moves[i]), max_speed[i])))
+        v = 0.0
+        for i in range(3):
+            v = float32(v + float32(moves[i] * moves[i]))
+        v = float32(math.sqrt(v)) if v >= 0.0 else math.nan
+        min_duration = cmax(min_duration, float32(div(v, feed_rate)))
+        for i in range(3, 6):
+            min_duration = cmax(min_duration, float32(div(abs(moves[i]), speed_limit)))
+        return cmin(float(float32(MAX_SPEED)),
+                    div(float32(length), SPEED_UNITS * min_duration))
 
     def _make_motor_active(self, axis: int) -> None:
         self.machine.motors_on = True
@@ -616,10 +645,10 @@ class Motion:
         if self.aborting():
             return moved
         moves = self._single(axis, home_distance)
-        self.switch_abandon_counter = int(float32(float32(abandon) * spu))
+        self.switch_abandon_counter = to_ulong(float32(float32(abandon) * spu))
         yield from self.add_block(FLT_MAX, FLT_MAX, False, moves)
         yield from self.wait_until_empty()
-        v = float32(abandon - float32(float32(self.switch_abandon_counter) / spu))
+        v = float32(abandon - float32(div(float32(self.switch_abandon_counter), spu)))
         moved = float32(moved + (v if home_distance >= 0.0 else -v))
         self.switch_abandon_counter = 0
         return moved
@@ -658,7 +687,7 @@ class Motion:
         for back_off in (True, False):
             factor = -0.25 if back_off else 1.0
             while tries > 0 and ((self.machine.switch_pin(B) == invert) == negative) == back_off:
-                self.switch_abandon_counter = int(float32(float32(abandon) * spu))
+                self.switch_abandon_counter = to_ulong(float32(float32(abandon) * spu))
                 moves = self._single(B, float32(factor * distance))
                 self.switch_invert = int((negative == bool(invert)) if back_off
                                          else (negative != bool(invert)))
@@ -702,7 +731,7 @@ class Motion:
         return left
 
     def _abandon_steps(self, axis: int, distance: float) -> int:
-        return int(float32(float32(distance) * self.pa["steps_per_unit"][AXES[axis]]))
+        return to_ulong(float32(float32(distance) * self.pa["steps_per_unit"][AXES[axis]]))
 
     def grab_filament(self, axis: int, overtravel: float, abandon: float) -> Iterator[Wait]:
         invert = self.pa["invert_switch"][AXES[axis]]

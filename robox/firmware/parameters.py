@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import struct
 
+from robox.firmware.carith import to_uchar
 from robox.firmware.cline import Line, float32
 from robox.formats import float8
 from robox.formats.firmware import (
@@ -28,7 +29,7 @@ HOURS_EVERY = 50  # hours-counter increments between flash writes
 
 def amps_to_dac(amps: float) -> int:
     """A motor current in amps as the revision-2 drivers' 0..31 setting."""
-    return max(0, min(31, int(float32(amps) * 32.0 * 0.13 / 0.325 - 0.5) & 0xFF))
+    return max(0, min(31, to_uchar(float32(amps) * 32.0 * 0.13 / 0.325 - 0.5)))
 
 
 def dac_to_amps(value: int) -> float:

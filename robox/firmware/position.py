@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 
+from robox.firmware.carith import UINT_MAX, cfloor, cmax, cmin, div, f32_accumulate, to_ulong
 from robox.firmware.cline import Line, float32, report_float, strtof
 from robox.firmware.gcode import Wait
 from robox.firmware.motion import FLT_MAX
@@ -124,23 +125,24 @@ class Position:
     # ------------------------------------------------------------ moves
     def do_move(self, feed_rate: float, speed_limit: float) -> Iterator[Wait]:
         """Queue the move that brings the position to the destination (travel limits,
-        tool offsets, levelling), then book the distances the steps really make."""
+        tool offsets, levelling), then book the distances the steps really make.
+        Returns whether a block was queued (False: every axis was within half a step)."""
         pa = self.pa
         pos, dest, off = self.position, self.destination, self.tool_offset
         moves = [0.0] * 6
         for i in (X, Y):
             if self.homing_done[i]:
-                target = max(0.0, min(self._travel(i), f32(dest[i] + off[i])))
+                target = cmax(0.0, cmin(self._travel(i), f32(dest[i] + off[i])))
                 moves[i] = f32(target - pos[i])
         if self.homing_done[Z]:
-            target = min(self._travel(Z),
-                         max(0.0, dest[Z]) + off[Z] + self.z_correction(moves[X], moves[Y],
-                                                                         dest[Z]))
+            target = cmin(self._travel(Z),
+                          cmax(0.0, dest[Z]) + off[Z] + self.z_correction(moves[X], moves[Y],
+                                                                          dest[Z]))
             moves[Z] = f32(target - pos[Z])
-        check_z_top = pos[Z] + max(moves[Z], 0.0) < pa["z_top_switch_min"]
+        check_z_top = pos[Z] + cmax(moves[Z], 0.0) < pa["z_top_switch_min"]
         for i in (E, D):
             moves[i] = f32(dest[i] - pos[i])
-        opening = f32(max(0.0, min(1.0, dest[B])))
+        opening = f32(cmax(0.0, cmin(1.0, dest[B])))
         opening = opening if self.tool == 0 else -opening
         moves[B] = f32(opening - pos[B]) if self.homing_done[B] else 0.0
         yield from self.motion.add_block(feed_rate, speed_limit, check_z_top, moves)
@@ -148,6 +150,53 @@ class Position:
             pos[i] = f32(pos[i] + moves[i])
         if self.on_move is not None:
             self.on_move(moves)
+        return any(moves)
+
+    def _quiet_segments(self, step: list[float], left: int) -> int:
+        """After a segment that queued nothing: how many of the next `left` segments
+        (each adding `step` to the destinations) queue nothing too.
+
+        For each axis the target is a monotonic function of its destination (a clamp
+        to the travel, an offset), and so are the steps add_block would make of it, so
+        the segments that leave an axis under half a step are a run from now: found by
+        bisection over the exact float sums (`f32_accumulate`). In those segments the
+        firmware only adds to the destinations."""
+        dest = self.destination
+        if self.levelling and step[Z] and self.homing_done[Z]:
+            return 0  # the Z correction washes out with height: not monotonic
+        quiet = left
+        for i in range(6):
+            m = step[i]
+            if not m or dest[i] != dest[i] or (i not in (E, D) and not self.homing_done[i]):
+                continue
+            if self._axis_steps(i, dest[i]):
+                return 0
+            if not self._axis_steps(i, f32_accumulate(dest[i], m, quiet)):
+                continue
+            lo, hi = 0, quiet  # no step after lo additions, a step after hi
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if self._axis_steps(i, f32_accumulate(dest[i], m, mid)):
+                    hi = mid
+                else:
+                    lo = mid
+            quiet = lo
+        return quiet
+
+    def _axis_steps(self, i: int, d: float) -> int:
+        """The steps do_move and add_block would give axis `i` were its destination `d`
+        (no levelling correction)."""
+        pos, off = self.position, self.tool_offset
+        if i in (X, Y):
+            move = f32(cmax(0.0, cmin(self._travel(i), f32(d + off[i]))) - pos[i])
+        elif i == Z:
+            move = f32(cmin(self._travel(Z), cmax(0.0, d) + off[Z] + 0.0) - pos[Z])
+        elif i == B:
+            opening = f32(cmax(0.0, cmin(1.0, d)))
+            move = f32((opening if self.tool == 0 else -opening) - pos[B])
+        else:
+            move = f32(d - pos[i])
+        return self.motion.steps_for(i, move)
 
     def move(self, line: Line, rapid: bool = False) -> Iterator[Wait]:
         """G0/G1 (do_g0_g1)."""
@@ -166,7 +215,7 @@ class Position:
             c = AXES[i]
             if line.has(c):
                 area = f32(self.diameter[n] * self.diameter[n]) * math.pi / 4.0
-                moves[i] = f32(f32(line.float(c) * self.multiplier[n]) / area)
+                moves[i] = f32(div(f32(line.float(c) * self.multiplier[n]), area))
                 self.feed_multiplier_select = n
                 has_edb = True
         if line.has("B"):
@@ -174,23 +223,39 @@ class Position:
             has_edb = True
         if line.has("F"):
             self.feed_rate = f32(line.float("F") / 60.0)
-        segments = 1 + int(distance / SEGMENT_MM)
+        # (unsigned long) of the quotient saturates, so one past it wraps to no segment
+        segments = (1 + to_ulong(distance / SEGMENT_MM)) & UINT_MAX
+        if segments == 0:
+            return
         for i in range(6):
             moves[i] = f32(moves[i] / f32(segments))
         for n in (0, 1):
-            self.extruded_mm[n] += moves[E + n] * segments
-        for _ in range(segments):
+            booked = moves[E + n] * segments
+            if math.isfinite(booked):
+                self.extruded_mm[n] += booked
+        left = segments
+        while left:
             for i in range(6):
                 dest[i] = f32(dest[i] + moves[i])
+            left -= 1
             if rapid:
-                yield from self.do_move(FLT_MAX, FLT_MAX)
+                moved = yield from self.do_move(FLT_MAX, FLT_MAX)
             elif has_xyz:
                 rate = self.feed_rate
                 if has_edb:
                     rate = f32(rate * self.feed_multiplier[self.feed_multiplier_select])
-                yield from self.do_move(rate, FLT_MAX)
+                moved = yield from self.do_move(rate, FLT_MAX)
             else:
-                yield from self.do_move(FLT_MAX, self.feed_rate)
+                moved = yield from self.do_move(FLT_MAX, self.feed_rate)
+            if not moved and left > 64:
+                # a move far past the travel or on axes not homed: the firmware spins
+                # through segments that queue nothing; only the destinations change
+                still = self._quiet_segments(moves, left)
+                if still:
+                    for i in range(6):
+                        if moves[i]:
+                            dest[i] = f32_accumulate(dest[i], moves[i], still)
+                    left -= still
 
     def select_tool(self, tool: int, line: Line) -> Iterator[Wait]:
         """T0/T1 (do_tool_change): Z first when it goes up, last when it goes down; the
@@ -496,7 +561,7 @@ class Position:
         eeproms = self.fw.eeproms
         for n, index in enumerate(REELS):
             axis = E + n
-            used = math.floor(self.destination[axis])
+            used = cfloor(self.destination[axis])
             eeproms.write_float_at(index, 0xB8, f32(eeproms.float_at(index, 0xB8, 0.0) - used))
             self.destination[axis] = f32(self.destination[axis] - used)
             self.position[axis] = f32(self.position[axis] - used)

@@ -20,9 +20,12 @@ from __future__ import annotations
 import os
 import select
 import signal
+import sys
 import time
+import traceback
 import tty
 
+from robox.errors import RoboxError
 from robox.firmware.command import HOST_CONNECTED_S
 from robox.firmware.main import PASS_S
 from robox.sim.printer import VirtualPrinter
@@ -149,17 +152,32 @@ class PtyServer:
         os.close(self.slave)
 
 
+class ModelFault(RoboxError):
+    """The firmware model raised while serving (a bug; its traceback went to the console)."""
+
+
 def serve_forever(state_dir, speed: float | None, announce, console=None) -> None:
     """Serve until SIGINT or SIGTERM, then leave every state file consistent."""
     printer = VirtualPrinter(state_dir)
     server = PtyServer(printer, speed, console)
     previous = {sig: signal.signal(sig, server.stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    faulted = False
     try:
         announce(server.path)
         server.serve()
+    except Exception as exc:  # a bug in the model: say so, keep what was committed
+        faulted = True
+        report = console or (lambda message: print(message, file=sys.stderr))
+        report(f"robox sim: fault in the firmware model at t={printer.firmware.clock.now:.3f}s: "
+               f"{type(exc).__name__}: {exc}")
+        for line in traceback.format_exc().rstrip().splitlines():
+            report(f"robox sim:   {line}")
+        raise ModelFault(f"the firmware model failed ({type(exc).__name__}: {exc}); "
+                         "the state files hold what was committed before it") from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-        printer.settle()
+        if not faulted:
+            printer.settle()
         printer.close()
         server.close()

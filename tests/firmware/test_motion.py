@@ -375,7 +375,6 @@ def test_automaker_macro_shapes_run_as_jobs(wire, name):
     wire.ok(b"\x94" + file_id.encode().ljust(16, b"\0"))
     wire.wait_job_done(3000)
     assert ("job finished", file_id.encode().ljust(16, b"\0")) in wire.fw.events
-    assert not wire.fw.faults
     assert not wire.fw.errors.is_set(ErrorBit.B_STUCK)
     if name == "level gantry":
         assert abs(m.za - m.zb) <= 0.02 * 6400

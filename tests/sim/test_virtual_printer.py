@@ -181,3 +181,22 @@ def test_a_served_printer_held_for_its_host_still_answers_it():
         assert set(errors[1:]) == {ord("0")}  # nothing a connected host would see latched
     finally:
         server.close()
+
+
+def test_sim_serve_reports_a_fault_in_the_model_on_its_console(tmp_path, monkeypatch):
+    """No catch-all hides a bug: the exception's type, message and traceback go to the
+    console (stderr for `sim serve`), and serving ends with a clear error."""
+    import pytest
+
+    from robox.sim import serve as serve_module
+
+    def broken(self, *args, **kwargs):
+        raise ValueError("cannot convert float NaN to integer")
+
+    monkeypatch.setattr(serve_module.VirtualPrinter, "run_pass", broken)
+    said: list[str] = []
+    with pytest.raises(serve_module.ModelFault, match="ValueError"):
+        serve_module.serve_forever(tmp_path / "state", None, lambda path: None, said.append)
+    assert said[0].startswith("robox sim: fault in the firmware model at t=")
+    assert said[0].endswith("ValueError: cannot convert float NaN to integer")
+    assert any("in broken" in line for line in said[1:])
