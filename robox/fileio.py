@@ -61,10 +61,9 @@ def write_atomically(path: str | os.PathLike, data: bytes) -> None:
         handle.write(data)
 
 
-def open_input(path: str | os.PathLike, what: str = "file"):
-    """An input file opened for reading in binary, refused at once (a robox error, one
-    line) when it is missing, unreadable, or not a regular file (a FIFO would block,
-    a device never ends)."""
+def require_regular_file(path: str | os.PathLike, what: str = "file") -> None:
+    """Refuse at once (a robox error, one line) a path that is missing, unreadable, or
+    not a regular file (a FIFO would block, a device never ends)."""
     from robox.errors import ImageError, NotFoundError
 
     try:
@@ -77,6 +76,13 @@ def open_input(path: str | os.PathLike, what: str = "file"):
         raise ImageError(f"{path}: is a directory, not {what}")
     if not stat.S_ISREG(info.st_mode):
         raise ImageError(f"{path}: not a regular file, not {what}")
+
+
+def open_input(path: str | os.PathLike, what: str = "file"):
+    """An input file opened for reading in binary, after `require_regular_file`."""
+    from robox.errors import ImageError
+
+    require_regular_file(path, what)
     try:
         return open(path, "rb")
     except PermissionError:

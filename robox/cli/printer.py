@@ -14,6 +14,7 @@ from robox.cli.gcode import macros_option, nozzle_option
 from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.firmware import image_revision
 from robox.formats.protocol import error_names
+from robox.formats.sdcard import make_id
 from robox.gcode import JobFile, Options, job_file
 from robox.gcode.files import inspect
 from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
@@ -114,6 +115,8 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
     A slicer's G-code (PrusaSlicer, Slic3r, Cura, OrcaSlicer, ...: a slicer's header, or
     M82/M83/G92 E) is first translated into a Robox job for the printer's head and reel
     (see `roboxise`); any other file goes as it is."""
+    if file_id is not None:
+        make_id(file_id)  # refuses an empty or non-ASCII id before the printer is opened
     detected = inspect(file)
     quiet = as_json or not sys.stderr.isatty()
     with device(ctx) as printer:
@@ -147,9 +150,10 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
 def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
             wait: bool, quiet: bool) -> dict:
     """Send the job file (a chunk at a time) and, with `wait`, follow its print."""
-    name = file_id or job_id_for(Path(file), job.sha1)
+    name = job_id_for(Path(file), job.sha1) if file_id is None else file_id
     if len(name.encode("ascii", "replace")) > 16:
         raise UsageError(f"job id {name!r} is longer than 16 characters")
+    make_id(name)  # refuses an empty or non-ASCII id
     before = _reels(printer) if wait else {}
     started = time.monotonic()
     sim = getattr(printer, "virtual", None)
@@ -241,10 +245,13 @@ def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool) -
 
 
 @click.command("run-job")
-@click.argument("file_id", metavar="ID", default="")
+@click.argument("file_id", metavar="[ID]", required=False)
 @click.pass_context
-def run_job_cmd(ctx, file_id: str) -> None:
+def run_job_cmd(ctx, file_id: str | None) -> None:
     """Print a job already on the card (no ID: the last job run)."""
+    if file_id is not None:
+        make_id(file_id)  # refuses an empty or non-ASCII id
+    file_id = file_id or ""
     with device(ctx) as printer:
         if file_id and file_id not in printer.files():
             raise NotFoundError(f"no job {file_id!r} on the printer's card")

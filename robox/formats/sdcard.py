@@ -50,7 +50,8 @@ def blocks_for(length: int) -> int:
 def make_id(value: str | bytes) -> bytes:
     """The 16-byte id stored for `value`: up to its first NUL, NUL padded.
 
-    Raises UsageError for an id longer than 16 bytes or not ASCII.
+    Raises UsageError for an id that is empty (no printer command can name it), longer
+    than 16 bytes or not ASCII.
     """
     if isinstance(value, str):
         if not value.isascii():
@@ -60,6 +61,8 @@ def make_id(value: str | bytes) -> bytes:
     raw = raw.split(b"\0", 1)[0]
     if len(raw) > ID_SIZE:
         raise UsageError(f"file id is {len(raw)} bytes long; at most {ID_SIZE} are allowed")
+    if not raw:
+        raise UsageError("file id is empty; a printer opens files by a non-empty id")
     if any(b >= 0x80 for b in raw):
         raise UsageError("file id must be ASCII")
     return raw.ljust(ID_SIZE, b"\0")

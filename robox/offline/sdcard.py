@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from robox.errors import ImageError, NotFoundError, RoboxError, UsageError
-from robox.fileio import replacing
+from robox.fileio import replacing, require_regular_file
 from robox.firmware.error_flags import ErrorFlags
 from robox.firmware.file_system import FileSystem, MountPlan, plan_mount, scan_copies
 from robox.formats.sdcard import (
@@ -79,6 +79,7 @@ def check_image_size(path: str | os.PathLike, size: int) -> int:
 @contextlib.contextmanager
 def open_card(path: str | os.PathLike, writable: bool = False) -> Iterator[SdCard]:
     """An SdCard over an image file, after checking the file can be one."""
+    require_regular_file(path, "a card image")
     try:
         storage = FileStorage(path, writable=writable)
     except FileNotFoundError:

@@ -135,7 +135,7 @@ def test_send_job_bad_input(state, tmp_path):
     binary = tmp_path / "photo.jpg"
     binary.write_bytes(b"\xff\xd8\xff\xe0" + bytes(100))
     one_line_error(sim(state, "send-job", str(binary)), 1, "not a G-code file")
-    one_line_error(sim(state, "send-job", str(EXAMPLE), "--id", "x" * 17), 2, "longer than 16")
+    one_line_error(sim(state, "send-job", str(EXAMPLE), "--id", "x" * 17), 2, "at most 16")
 
 
 # --------------------------------------------------------- the client API
