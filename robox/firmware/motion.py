@@ -32,6 +32,7 @@ import math
 from collections.abc import Iterator
 
 from robox.firmware.carith import cmax, cmin, div, floor_long, to_ulong, to_ushort, wrap_long
+from robox.firmware.carith import sqrt as csqrt
 from robox.firmware.cline import float32
 from robox.firmware.gcode import Wait, wait_for
 from robox.formats.protocol import ErrorBit
@@ -355,7 +356,7 @@ class Motion:
         v = 0.0
         for i in range(3):
             v = float32(v + float32(moves[i] * moves[i]))
-        v = float32(math.sqrt(v)) if v >= 0.0 else math.nan
+        v = float32(csqrt(v))
         min_duration = cmax(min_duration, float32(div(v, feed_rate)))
         for i in range(3, 6):
             min_duration = cmax(min_duration, float32(div(abs(moves[i]), speed_limit)))
