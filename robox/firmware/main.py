@@ -125,7 +125,8 @@ class Firmware:
         return bool((usb.received and not command.deaf) or usb.arriving or line_ready
                     or self.heaters.conversion_ready
                     or command.pending_after_reply or self.job.runnable()
-                    or self.reset_requested or not all(self.eeproms.quiet(i) for i in range(3)))
+                    or self.reset_requested or self.hours.due()
+                    or not all(self.eeproms.quiet(i) for i in range(3)))
 
     def next_step(self, limit: float | None = None) -> float:
         """How far the clock may move before the next pass (see `plan`)."""
@@ -158,7 +159,7 @@ class Firmware:
                 kind = wait.motion
         if self.heaters.any_on():
             events.append(now + HEATER_STEP_S)
-        events += [self.hours.next_tick, self.eeproms.update_due,
+        events += [self.eeproms.update_due,
                    self.heaters.conversion_started + 1.0]
         horizon = min(events)
         if limit is not None:

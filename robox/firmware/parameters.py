@@ -24,7 +24,6 @@ from robox.formats.firmware import (
 AXES = "XYZEDB"
 STORE = PARAMETER_PAGES[0] * PAGE_SIZE
 STORE_SIZE = len(PARAMETER_PAGES) * PAGE_SIZE
-HOURS_EVERY = 50  # hours-counter increments between flash writes
 
 
 def amps_to_dac(amps: float) -> int:
@@ -233,37 +232,55 @@ class Parameters:
 
 
 class HoursCounter:
-    """Printer hours in flash page 509 (8 ASCII characters); counts while a job runs.
-    Also drives the 7.2 s filament and head-hours bookkeeping."""
+    """The printer's hours in flash page 509: the first 8 characters of "%f".
+
+    Run time is counted in timer ticks while a job runs unpaused. Once no job runs
+    and the motion queue is empty (writing flash stops interrupts), the page's own
+    number plus the run time is written back in one page write, and the count starts
+    again (maintain_hours_counter in parameters.c). A power cut during a job loses
+    that job's time; one during the page write leaves whatever the page then holds."""
 
     def __init__(self, firmware):
         self.fw = firmware
 
     def initialise(self) -> None:
-        raw = self.fw.hw.flash.page(HOURS_PAGE)[:8]
-        self.hours = float8.parse(raw) if raw != b"\xff" * 8 else 0.0
-        self.next_tick = self.fw.clock.now + 7.2
-        self.unsaved = 0
+        self.run_ticks = 0
+        self.last_tick = self._tick()
+
+    def _tick(self) -> int:
+        return int(self.fw.clock.now * 1000 + 0.5)
+
+    def _stored(self) -> bytes:
+        return self.fw.hw.flash.page(HOURS_PAGE)[:8]
 
     def text(self) -> bytes:
-        return float8.encode(self.hours)
+        """0xb6: the page's 8 bytes, each masked to 7 bits."""
+        return bytes(b & 0x7F for b in self._stored())
 
     def set_text(self, data: bytes) -> None:
-        self.hours = float8.parse(data)
-        self._save()
+        """0xc6: the 8 bytes as sent, and the run time so far forgotten."""
+        self._program(bytes(data[:8]))
+        self.run_ticks = 0
 
-    def _save(self) -> None:
-        page = self.text().ljust(PAGE_SIZE, b"\xff")
-        if self.fw.hw.flash.page(HOURS_PAGE) != page:
-            self.fw.hw.flash.write_page(HOURS_PAGE, page)
-        self.unsaved = 0
+    def _program(self, data: bytes) -> None:
+        # program_page: only when the first bytes differ; the rest of the page is zeroed
+        if self._stored()[: len(data)] != data:
+            self.fw.hw.flash.write_page(HOURS_PAGE, data.ljust(PAGE_SIZE, b"\0"))
+
+    def due(self) -> bool:
+        """A job's run time waits to be written (at the first pass with motion stopped)."""
+        return self.run_ticks > 0 and not self.fw.job.running and self.fw.motion.empty()
 
     def maintain(self) -> None:
-        if self.fw.clock.now < self.next_tick:
-            return
-        self.next_tick += 7.2
-        if self.fw.job.running:
-            self.hours += 0.002
-            self.unsaved += 1
-            if self.unsaved >= HOURS_EVERY:
-                self._save()
+        now = self._tick()
+        job = self.fw.job
+        if job.running:
+            if not job.paused():
+                self.run_ticks = (self.run_ticks + now - self.last_tick) & 0xFFFFFFFF
+        elif self.run_ticks > 0:
+            hours = float32(float8.parse(self._stored().split(b"\0", 1)[0])
+                            + float32(self.run_ticks) / 3600000.0)
+            if self.fw.motion.empty():
+                self._program(f"{hours:f}        ".encode("ascii")[:8])
+                self.run_ticks = 0
+        self.last_tick = now

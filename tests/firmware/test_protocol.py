@@ -6,7 +6,7 @@ import re
 import pytest
 
 from robox.formats.protocol import ErrorBit
-from tests.firmware.wire import float8, hexn, ident
+from tests.firmware.wire import float8, hexn, ident, job_text
 
 
 def test_ack_is_64_characters_of_error_bits(wire):
@@ -258,3 +258,69 @@ def test_reset_restarts_from_power_up_keeping_card_chips_and_flash(wire):
     assert wire.line(b"M115\n").startswith(b"FIRMWARE")
     assert wire.raw(b"\x96") == b"\xe001" + ident("keep")
     assert wire.raw(b"\xb2")[1:3] == b"ID"
+
+
+# ------------------------------------------- hours counter (parameters.c)
+def hours_page(wire) -> bytes:
+    from robox.formats.firmware import HOURS_PAGE
+
+    return wire.printer.hw.flash.page(HOURS_PAGE)
+
+
+def test_a_job_adds_its_unpaused_run_time_to_the_hours_once_it_has_ended(wire):
+    """maintain_hours_counter: ticks counted while the job runs and is not paused; one
+    page write, "%f" of strtof(page) + ticks / 3.6e6 in float, once the job has ended
+    and motion has stopped; the rest of the page zeroed by program_page."""
+    wire.ok(b"\xc6" + b"12.50000")
+    writes = wire.printer.hw.flash.page_writes
+    wire.upload("hours", job_text(["G4 S20", "M1", "G4 S30"]))
+    wire.ok(b"\x94" + ident("hours"))
+    fw = wire.fw
+    assert wire.printer.run_until(lambda: fw.job.paused(), 60)  # the job's own M1
+    started = fw.hours.run_ticks
+    wire.printer.run_until(lambda: False, 100)  # 100 s paused: not counted
+    assert fw.hours.run_ticks == started
+    assert wire.raw(b"\xb6") == b"\xea12.50000"  # nothing written while the job runs
+    wire.ok(b"\x980")
+    wire.wait_job_done()
+    wire.printer.run_until(lambda: wire.printer.hw.flash.page_writes > writes, 1)
+    text = wire.raw(b"\xb6")[1:]
+    seconds = (float(text) - 12.5) * 3600
+    assert 50 <= seconds < 51, text  # the dwells and the passes around them, not the pause
+    assert hours_page(wire) == text + bytes(248)
+    assert wire.printer.hw.flash.page_writes == writes + 1
+    wire.printer.run_until(lambda: False, 30)
+    assert wire.printer.hw.flash.page_writes == writes + 1  # the count starts again at 0
+
+
+def test_hours_text_rounds_as_c_float_and_masks_on_reading(wire):
+    import struct
+
+    wire.ok(b"\xc6" + b"9999.999")
+    wire.upload("h2", job_text(["G4 P7200"]))
+    wire.ok(b"\x94" + ident("h2"))
+    wire.wait_job_done()
+    wire.printer.run_until(lambda: not wire.fw.hours.run_ticks, 1)
+    ticks = 7200 + 0  # the dwell; the job's own passes add at most a few ticks
+    text = wire.raw(b"\xb6")[1:]
+    candidates = set()
+    for extra in range(0, 20):
+        f = struct.unpack("<f", struct.pack("<f", 9999.999))[0]
+        t = struct.unpack("<f", struct.pack("<f", float(ticks + extra)))[0]
+        total = struct.unpack("<f", struct.pack("<f", f + t / 3600000.0))[0]
+        candidates.add(f"{total:f}"[:8].encode())
+    assert text in candidates
+    wire.ack(b"\xc6" + bytes([0xB1, 0xB2]) + b"345678")
+    assert wire.raw(b"\xb6") == b"\xea12345678"  # get_hours_counter masks each byte
+    assert hours_page(wire)[:2] == bytes([0xB1, 0xB2])
+
+
+def test_a_power_cut_during_a_job_loses_its_hours(wire):
+    wire.ok(b"\xc6" + b"1.000000")
+    wire.upload("h3", job_text(["G4 S30"]))
+    wire.ok(b"\x94" + ident("h3"))
+    wire.printer.run_until(lambda: False, 10)
+    assert wire.fw.hours.run_ticks > 9000
+    wire.fw.power_up()
+    wire.printer.run_until(lambda: False, 40)
+    assert wire.raw(b"\xb6") == b"\xea1.000000"
