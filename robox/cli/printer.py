@@ -135,6 +135,10 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
         emit_json(summary)
         return
     click.echo(f"sent {summary['id']}: {summary['bytes']} bytes, {summary['lines']} lines")
+    if summary["restarted"]:
+        click.echo(f"not printing: the printer lost the interrupted print; once the bed is "
+                   f"clear, `robox-cli run-job {summary['id']}` prints it from the start")
+        return
     if wait:
         took = summary.get("simulated_print_time_s", summary["print_time_s"])
         click.echo(f"printed in {took / 60:.1f} min"
@@ -161,20 +165,23 @@ def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
     with open(job.path, "rb") as source:
         with click.progressbar(length=job.size, label=f"uploading {name}", file=sys.stderr,
                                hidden=quiet) as bar:
-            sent = [0]
+            done_bytes = [0]
 
             def progress(done: int, total: int) -> None:
-                bar.update(done - sent[0])
-                sent[0] = done
+                bar.update(done - done_bytes[0])
+                done_bytes[0] = done
 
             try:
-                printer.send_file(source, name, resume=resume, progress=progress,
-                                  notice=lambda message: click.echo(message, err=True))
+                sent = printer.send_file(source, name, resume=resume, progress=progress,
+                                         notice=lambda message: click.echo(message, err=True))
             except Disconnected:
-                raise RoboxError(f"the printer was disconnected after {sent[0]} of "
+                raise RoboxError(f"the printer was disconnected after {done_bytes[0]} of "
                                  f"{job.size} bytes; run the same command with --resume to "
                                  "continue") from None
-        summary = {"id": name, "bytes": job.size, "lines": job.lines}
+        summary = {"id": name, "bytes": job.size, "lines": job.lines,
+                   "resumed_from_byte": sent.first_chunk * 512, "restarted": sent.restarted,
+                   "printing": sent.printing}
+        wait = wait and sent.printing
         if wait:
             _follow(printer, name, job.lines, catch_up_lines(source), quiet)
     if wait:

@@ -7,6 +7,7 @@ does not acknowledge: the transaction returns None / False and changes nothing.
 
 from __future__ import annotations
 
+from robox.errors import PowerCut
 from robox.formats.eeprom import CHIP_SIZE, EepromIndex
 from robox.hardware.clock import SimClock
 from robox.hardware.faults import EepromFaultPlan
@@ -33,6 +34,8 @@ class EepromChip:
         self.writes = 0
         self.nacks = 0
         self._busy_until = 0.0
+        #: The printer's supply (a PowerPlan shared with the other media), if watched.
+        self.power = None
 
     def unplug(self) -> None:
         self.plugged = False
@@ -67,6 +70,12 @@ class EepromChip:
                 self.data[address % CHIP_SIZE] = value & 0xFF
             return False
         self.writes += 1
+        landing = None if self.power is None else \
+            self.power.write(self, address % CHIP_SIZE, bytes([value & 0xFF]))
+        if landing is not None:
+            self.data[address % CHIP_SIZE] = (landing.param if landing.mode == "garble"
+                                              else value) & 0xFF
+            raise PowerCut(f"power cut while writing EEPROM byte {address % CHIP_SIZE:#x}")
         self.data[address % CHIP_SIZE] = value & 0xFF
         self._busy_until = self._now() + self.write_cycle
         return True

@@ -84,3 +84,49 @@ class EepromFaultPlan:
         if self.unplug_at is None:
             return "none"
         return f"unplug_at={self.unplug_at},write_lands={self.write_lands}"
+
+
+@dataclass
+class Landing:
+    """How the write that power fails during lands: "whole" (then power fails), or torn:
+    on a card block "prefix"/"mix"/"erase" as a Tear; on an EEPROM byte "garble" (the
+    cell left holding `param`); on a flash page "partial" (erased, its first `param`
+    bytes programmed)."""
+
+    mode: str = "whole"
+    param: int = 0
+
+    def tear(self) -> Tear | None:
+        if self.mode == "prefix":
+            return Tear(prefix=self.param)
+        if self.mode == "mix":
+            return Tear(seed=self.param)
+        if self.mode == "erase":
+            return Tear(fill=0)
+        return None
+
+
+@dataclass
+class PowerPlan:
+    """The printer's supply, shared by every nonvolatile medium (card, EEPROM chips,
+    flash): their writes are counted in one sequence, in the order they happen, and
+    power fails during write number `cut_at` (1-based), which lands as `landing` says.
+    With `log`, every write is also recorded as (device, address, bytes)."""
+
+    cut_at: int | None = None
+    landing: Landing = field(default_factory=Landing)
+    log: list | None = None
+    writes: int = 0
+
+    def write(self, device: object, address: int, data: bytes) -> Landing | None:
+        """Called by a device as a write reaches its medium; a Landing means the device
+        lands the write that way and raises PowerCut."""
+        self.writes += 1
+        if self.log is not None:
+            self.log.append((device, address, bytes(data)))
+        return self.landing if self.writes == self.cut_at else None
+
+    def describe(self) -> str:
+        if self.cut_at is None:
+            return "none"
+        return f"cut_at={self.cut_at}:{self.landing.mode}:{self.landing.param}"

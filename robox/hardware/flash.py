@@ -25,6 +25,8 @@ class Flash:
             raise ValueError(f"flash is {FLASH_SIZE} bytes, not {self.storage.size}")
         self.faults = faults or FlashFaultPlan()
         self.page_writes = 0
+        #: The printer's supply (a PowerPlan shared with the other media), if watched.
+        self.power = None
 
     def read(self, offset: int, length: int) -> bytes:
         return self.storage.read(offset, length)
@@ -37,6 +39,11 @@ class Flash:
         self.page_writes += 1
         if self.faults.cut_at_write == self.page_writes:
             landed = self.faults.landed
+            self.storage.write(number * PAGE_SIZE, data[:landed] + b"\xff" * (PAGE_SIZE - landed))
+            raise PowerCut(f"power cut while writing flash page {number}")
+        landing = self.power.write(self, number, data) if self.power is not None else None
+        if landing is not None:
+            landed = PAGE_SIZE if landing.mode == "whole" else landing.param
             self.storage.write(number * PAGE_SIZE, data[:landed] + b"\xff" * (PAGE_SIZE - landed))
             raise PowerCut(f"power cut while writing flash page {number}")
         self.storage.write(number * PAGE_SIZE, data)

@@ -27,6 +27,8 @@ class SdCard:
         self.writes = 0
         self.initialisations = 0
         self._accesses = 0
+        #: The printer's supply (a PowerPlan shared with the other media), if watched.
+        self.power = None
 
     @classmethod
     def blank(cls, blocks: int, faults: FaultPlan | None = None) -> SdCard:
@@ -88,6 +90,12 @@ class SdCard:
         if self.faults.tear_write == self.writes:
             old = self.storage.read(offset, BLOCK_SIZE)
             self.storage.write(offset, self.faults.tear.apply(old, bytes(data)))
+            raise PowerCut(f"power cut during write {self.writes} (block {block})")
+        landing = self.power.write(self, block, data) if self.power is not None else None
+        if landing is not None:
+            tear = landing.tear()
+            old = self.storage.read(offset, BLOCK_SIZE)
+            self.storage.write(offset, tear.apply(old, bytes(data)) if tear else bytes(data))
             raise PowerCut(f"power cut during write {self.writes} (block {block})")
         self.storage.write(offset, bytes(data))
         if self.faults.cut_after_write == self.writes:

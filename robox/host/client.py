@@ -83,6 +83,17 @@ def catch_up_lines(data: bytes | BinaryIO, chunks: int | None = None) -> CatchUp
     return points
 
 
+@dataclass(frozen=True)
+class Sent:
+    """The outcome of send_file: the chunk the upload went on from, whether it had to
+    start over (the printer had lost it), and whether the file is a job now printing
+    (or left printing by the interrupted upload)."""
+
+    first_chunk: int
+    restarted: bool
+    printing: bool
+
+
 class PrinterError(RoboxError):
     """The printer reported errors in its ack."""
 
@@ -310,24 +321,35 @@ class Printer:
     def send_file(self, data: bytes | BinaryIO, file_id: str, job: bool = True,
                   run: bool = True, resume: bool = False,
                   progress: Callable[[int, int], None] | None = None,
-                  notice: Callable[[str], None] | None = None) -> None:
+                  notice: Callable[[str], None] | None = None) -> Sent:
         """Store `data` (bytes, or a seekable binary file read a chunk at a time) as a
         file: start, chunks, end. A job starts printing once more than one chunk is
         stored, and is resumed whenever it pauses because it caught up with the upload
         (see resume_if_caught_up). With `resume`, continue the upload the printer reports
-        as open instead of starting over."""
+        as open instead of starting over.
+
+        A printer that was switched off or reset has no upload open: its partial file was
+        never committed, so with `resume` the file is sent again from the start, and a job
+        is then not started (its print was cut short on the bed; run_job prints it from
+        the start once the bed is clear). Returns what happened."""
         source = io.BytesIO(data) if isinstance(data, bytes | bytearray) else data
         size = source.seek(0, io.SEEK_END)
         stored = make_id(file_id)
         name = stored.rstrip(b"\0").decode("ascii")
         chunks = size // CHUNK
         first = 0
+        restarted = False
         if resume:
             open_id, first = self.send_file_report()
-            if open_id != name:
-                raise RoboxError(f"the printer has no upload of {name!r} to resume"
-                                 + (f" (it is receiving {open_id!r})" if open_id else ""))
-        else:
+            if open_id is not None and open_id != name:
+                raise RoboxError(f"the printer has no upload of {name!r} to resume (it is "
+                                 f"receiving {open_id!r})")
+            if open_id is None:
+                restarted, first, run = True, 0, False
+                if notice is not None:
+                    notice(f"the printer has no upload of {name} open (it was switched off or "
+                           "reset): sending it again from the start")
+        if not resume or restarted:
             self.ack((b"\x97" if job else b"\x90") + stored, f"start {name}")
         started = resume and first > 1
         watch = job and run
@@ -363,6 +385,7 @@ class Printer:
         elif watch:
             # a pause made while the last chunks were on their way stays until resumed
             self.resume_if_caught_up(name, caught_up_at, tell)
+        return Sent(first, restarted, watch)
 
     # ---------------------------------------------------- update firmware
     def update_firmware(self, image: bytes, file_id: str = "robox_firmware",

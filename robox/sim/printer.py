@@ -12,6 +12,7 @@ offline tools):
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 from robox.errors import ImageError, RoboxError
@@ -68,14 +69,33 @@ def _new_card(card: Path) -> None:
                 card_images.put_file(temp, data, entry["id"], entry["job"])
 
 
-class VirtualPrinter:
-    """Firmware plus hardware; `state_dir=None` keeps everything in memory."""
+@dataclass(frozen=True)
+class Media:
+    """What a printer keeps with its power off: the card's bytes, each EEPROM socket's chip
+    (None: empty socket), and the flash."""
 
-    def __init__(self, state_dir: str | os.PathLike | None = None, card_blocks: int = 16384):
+    card: bytes
+    chips: tuple[bytes | None, bytes | None, bytes | None]
+    flash: bytes
+
+
+class VirtualPrinter:
+    """Firmware plus hardware; `state_dir=None` keeps everything in memory (starting from
+    `media` when given)."""
+
+    def __init__(self, state_dir: str | os.PathLike | None = None, card_blocks: int = 16384,
+                 media: Media | None = None):
         self.state_dir = Path(state_dir) if state_dir is not None else None
         self._files = []
         chips: dict[EepromIndex, EepromChip | None] = {}
-        if self.state_dir is None:
+        if media is not None:
+            if state_dir is not None:
+                raise ValueError("media are for an in-memory printer")
+            card = SdCard(MemoryStorage(media.card))
+            flash = Flash(MemoryStorage(media.flash))
+            chips = {index: None if content is None else EepromChip(content)
+                     for index, content in zip(EepromIndex, media.chips, strict=True)}
+        elif self.state_dir is None:
             card = SdCard.blank(card_blocks)
             flash = Flash(MemoryStorage(images.flash_contents(images.firmware_image(),
                                                               b"RBXSIM0000000001")))
@@ -118,6 +138,21 @@ class VirtualPrinter:
     @property
     def usb(self):
         return self.hw.usb
+
+    def media(self) -> Media:
+        """A copy of everything nonvolatile, as it stands."""
+        hw = self.hw
+        return Media(bytes(hw.card.storage.read(0, hw.card.storage.size)),
+                     tuple(None if chip is None else bytes(chip.data)
+                           for chip in hw.eeprom_bus.sockets),
+                     bytes(hw.flash.read(0, FLASH_SIZE)))
+
+    def supply(self, plan) -> None:
+        """Power every nonvolatile medium from `plan` (a PowerPlan), or from the mains."""
+        hw = self.hw
+        for device in (hw.card, hw.flash, *hw.eeprom_bus.sockets):
+            if device is not None:
+                device.power = plan
 
     # ------------------------------------------------------------ running
     def run_pass(self, step: float | None = None, passes: int = 1) -> None:

@@ -1,0 +1,369 @@
+"""Power cut at every write of a print still being uploaded: card, EEPROMs and flash.
+
+The scenario: a host on a slow link uploads a heated job through the real client
+and the pyusb backend; the printer starts it after the second chunk, catches up
+with the upload again and again (the host resumes each pause), extrudes, books
+filament and head hours to the reel and head EEPROMs every 7.2 s, finishes, and
+writes the job's run time to the hours page of its flash. Every write to a
+nonvolatile medium is counted in one sequence (hardware.faults.PowerPlan).
+
+As in the card campaign, the scenario runs once while recording those writes:
+the printer that survives a cut during write N holds the initial media plus
+writes 1..N-1 plus write N landed whole or torn (a card block torn as a prefix,
+a byte mix or erased; an EEPROM byte left holding another value; a flash page
+erased and partly programmed). A cut between two writes, during a card read,
+or while the job reads its file leaves the same media as one right after the
+last write before it, so these cases cover every moment of the run.
+`replay(case_id)` runs a cut for real, from the top, through the PowerPlan.
+
+At every cut the survivor is judged (`check`): the card mounts with every file
+committed before the cut intact, the job either absent or whole, the last job
+and the nonvolatile bytes old or new; after power-up each EEPROM loads VALID
+holding one of the last two images the firmware was writing to it (so the
+reel's remaining filament is one of its last two values written); the hours
+page holds its old or new text (torn by a cut during its own page write, which
+the firmware does not guard against, it still reads back as the page holds
+it); the image is intact; and `send_file(..., resume=True)` then stores the job
+byte-identical.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import random
+from dataclasses import dataclass
+from functools import cache
+
+import usb.core
+
+from robox.errors import PowerCut
+from robox.firmware.error_flags import ErrorFlags
+from robox.firmware.file_system import FileSystem
+from robox.formats.eeprom import DATA_SIZE, EepromIndex
+from robox.formats.firmware import HOURS_PAGE, PAGE_SIZE
+from robox.formats.protocol import ErrorBit
+from robox.formats.sdcard import BLOCK_SIZE, Directory, make_id
+from robox.hardware.faults import Landing, PowerPlan
+from robox.hardware.sdcard import SdCard
+from robox.hardware.storage import MemoryStorage
+from robox.host.client import Printer, catch_up_lines
+from robox.host.transport import UsbTransport
+from robox.sim.printer import Media, VirtualPrinter
+from robox.sim.usb_backend import VirtualRoboxBackend
+from tests.faults.campaign import State, observe
+
+CARD_BLOCKS = 4096
+JOB_ID = "part"
+HOST_IDLE_S = 8.0  # a slow link: simulated seconds the host spends per chunk
+CHIPS = (EepromIndex.HEAD, EepromIndex.REEL0)
+
+
+def job_bytes(lines: int = 400) -> bytes:
+    text = ["M104 S210", "G28 X Y", "M109 S210", "G90"]
+    for i in range(lines):
+        a = i * 0.1
+        text.append(f"G1 X{100 + 30 * math.cos(a):.3f} Y{75 + 30 * math.sin(a):.3f} E0.05 "
+                    "F3000")
+    text.append("M104 S0")
+    return "".join(line + "\r" for line in text).encode()
+
+
+JOB = job_bytes()
+
+
+def connect(virtual: VirtualPrinter) -> Printer:
+    backend = VirtualRoboxBackend(virtual)
+    device = usb.core.find(idVendor=0x16D0, idProduct=0x081B, backend=backend)
+    return Printer(UsbTransport(device), idle=lambda s: virtual.run_until(
+        lambda: False, s, between_lines=False))
+
+
+@cache
+def initial_media() -> Media:
+    """A settled printer whose card already holds two jobs, the last one printed."""
+    virtual = VirtualPrinter(card_blocks=CARD_BLOCKS)
+    virtual.settle()
+    printer = connect(virtual)
+    printer.send_file(b"G1 X20 Y20 F3000\rG1 X40 Y40\r" * 100, "first", run=False)
+    printer.send_file(b"G28 X Y\rG1 X50 Y50 F3000\r" * 30, "older")
+    virtual.run_until(lambda: not virtual.firmware.job.running, 100)
+    virtual.cool_down()
+    virtual.settle()
+    printer.clear_errors()
+    return virtual.media()
+
+
+def scenario(virtual: VirtualPrinter) -> None:
+    """The host's side: upload on a slow link while printing, then follow to the end."""
+    printer = connect(virtual)
+    printer.send_file(JOB, JOB_ID, progress=lambda done, total: printer.idle(HOST_IDLE_S))
+    caught_up = catch_up_lines(JOB)
+    while virtual.firmware.job.running:
+        printer.resume_if_caught_up(JOB_ID, caught_up)
+        printer.idle(1.0)
+    virtual.settle()
+
+
+# ------------------------------------------------------------------ recording
+@dataclass(frozen=True)
+class Write:
+    medium: str  # "card", "head", "reel0", "flash"
+    address: int  # block, byte address, page
+    data: bytes
+    time: float
+    #: what the firmware held in RAM for each chip of CHIPS as this write reached its medium
+    intents: tuple[bytes, ...]
+
+
+@dataclass
+class Recording:
+    initial: Media
+    writes: list[Write]
+    final: Media
+
+    def chip_images(self, n: int, chip: int) -> list[bytes]:
+        """The distinct RAM images of a chip the firmware had asked for up to write n."""
+        seen: list[bytes] = []
+        for write in self.writes[:n]:
+            if not seen or seen[-1] != write.intents[chip]:
+                seen.append(write.intents[chip])
+        return seen
+
+
+class _Recorder(PowerPlan):
+    def __init__(self, virtual: VirtualPrinter):
+        super().__init__(log=[])
+        self.virtual = virtual
+        hw = virtual.hw
+        self.names = {id(hw.card): "card", id(hw.flash): "flash"}
+        for index in CHIPS:
+            self.names[id(hw.eeprom_bus.sockets[index])] = index.name.lower()
+        self.records: list[Write] = []
+
+    def write(self, device, address, data):
+        fw = self.virtual.firmware
+        self.records.append(Write(self.names[id(device)], address, bytes(data), fw.clock.now,
+                                 tuple(bytes(fw.eeproms.states[i].data) for i in CHIPS)))
+        return super().write(device, address, data)
+
+
+@cache
+def record() -> Recording:
+    initial = initial_media()
+    virtual = VirtualPrinter(media=initial)
+    virtual.settle()  # switched on a moment ago: the EEPROMs have loaded
+    recorder = _Recorder(virtual)
+    virtual.supply(recorder)
+    scenario(virtual)
+    return Recording(initial, recorder.records, virtual.media())
+
+
+# ---------------------------------------------------------------------- cases
+@dataclass(frozen=True)
+class Case:
+    write: int  # 1-based ordinal in the recording's sequence
+    mode: str  # Landing mode
+    param: int = 0
+
+    @property
+    def id(self) -> str:
+        return f"{self.mode}:{self.write}:{self.param}"
+
+    @classmethod
+    def parse(cls, text: str) -> Case:
+        mode, write, param = text.split(":")
+        return cls(int(write), mode, int(param))
+
+    def landing(self) -> Landing:
+        return Landing(self.mode, self.param)
+
+
+def cases(rec: Recording) -> list[Case]:
+    """Every write, landed whole and torn in each way its medium can tear."""
+    rng = random.Random(2026)
+    out = []
+    for n, write in enumerate(rec.writes, 1):
+        out.append(Case(n, "whole"))
+        if write.medium == "card":
+            out.append(Case(n, "prefix", rng.randrange(1, BLOCK_SIZE)))
+            out.append(Case(n, "mix", n))
+            if write.address in (0, 1):
+                out.append(Case(n, "erase"))
+        elif write.medium == "flash":
+            out += [Case(n, "partial", 0), Case(n, "partial", rng.randrange(1, 8))]
+        else:
+            old = MediaBuilder(rec).chip_byte(n, write)
+            out.append(Case(n, "garble", next(v for v in (old ^ 0xFF, 0x55, 0xAA)
+                                              if v not in (old, write.data[0]))))
+    return out
+
+
+class MediaBuilder:
+    """The media as they stand after writes 1..n, advanced one write at a time."""
+
+    def __init__(self, rec: Recording):
+        self.rec = rec
+        self._reset()
+
+    def _reset(self) -> None:
+        initial = self.rec.initial
+        self.card = bytearray(initial.card)
+        self.chips = {"head": bytearray(initial.chips[EepromIndex.HEAD]),
+                      "reel0": bytearray(initial.chips[EepromIndex.REEL0])}
+        self.flash = bytearray(initial.flash)
+        self.applied = 0
+
+    def _apply(self, write: Write, data: bytes | None = None) -> None:
+        data = write.data if data is None else data
+        if write.medium == "card":
+            self.card[write.address * BLOCK_SIZE : (write.address + 1) * BLOCK_SIZE] = data
+        elif write.medium == "flash":
+            self.flash[write.address * PAGE_SIZE : (write.address + 1) * PAGE_SIZE] = data
+        else:
+            self.chips[write.medium][write.address] = data[0]
+
+    def advance_to(self, n: int) -> None:
+        if n < self.applied:
+            self._reset()
+        while self.applied < n:
+            self._apply(self.rec.writes[self.applied])
+            self.applied += 1
+
+    def chip_byte(self, n: int, write: Write) -> int:
+        self.advance_to(n - 1)
+        return self.chips[write.medium][write.address]
+
+    def survivor(self, case: Case) -> Media:
+        """The media after power failed during `case`'s write."""
+        self.advance_to(case.write - 1)
+        write = self.rec.writes[case.write - 1]
+        card, flash = bytearray(self.card), bytearray(self.flash)
+        chips = {name: bytearray(data) for name, data in self.chips.items()}
+        landed = write.data
+        if write.medium == "card":
+            tear = case.landing().tear()
+            if tear is not None:
+                offset = write.address * BLOCK_SIZE
+                landed = tear.apply(bytes(card[offset : offset + BLOCK_SIZE]), write.data)
+            card[write.address * BLOCK_SIZE : (write.address + 1) * BLOCK_SIZE] = landed
+        elif write.medium == "flash":
+            count = PAGE_SIZE if case.mode == "whole" else case.param
+            landed = write.data[:count] + b"\xff" * (PAGE_SIZE - count)
+            flash[write.address * PAGE_SIZE : (write.address + 1) * PAGE_SIZE] = landed
+        else:
+            chips[write.medium][write.address] = \
+                case.param if case.mode == "garble" else write.data[0]
+        return Media(bytes(card), (bytes(chips["head"]), bytes(chips["reel0"]), None),
+                     bytes(flash))
+
+
+# --------------------------------------------------------------------- judging
+def _files_of(media: Media) -> tuple[State, str]:
+    """The card's state as a mount shows it, and how the mount went."""
+    fs = FileSystem(SdCard(MemoryStorage(media.card)), ErrorFlags())
+    state = observe(fs)
+    return state, fs.last_mount.action if fs.last_mount else ""
+
+
+def _nonvolatile_written(rec: Recording, n: int) -> set[bytes]:
+    """Nonvolatile bytes the directory held as of write n-1, and those of write n."""
+    legal = {Directory.decode(rec.initial.card[:BLOCK_SIZE]).nonvolatile}
+    latest = next(iter(legal))
+    for k, write in enumerate(rec.writes[:n], 1):
+        if write.medium == "card" and write.address == 0:
+            if k < n:
+                latest = Directory.decode(write.data).nonvolatile
+            else:
+                legal = {latest, Directory.decode(write.data).nonvolatile}
+    return legal if rec.writes[n - 1].medium == "card" and rec.writes[n - 1].address == 0 \
+        else {latest}
+
+
+def job_digest() -> str:
+    return hashlib.sha1(JOB).hexdigest()
+
+
+def judge_card(rec: Recording, case: Case, state: State) -> list[str]:
+    before, _ = _files_of(rec.initial)
+    problems = [f"committed file {f[0]!r} lost or changed" for f in before.files
+                if f not in state.files]
+    new_id = make_id(JOB_ID)
+    for file_id, digest in state.files:
+        if (file_id, digest) in before.files:
+            continue
+        if file_id != new_id:
+            problems.append(f"file {file_id!r} appeared")
+        elif digest != job_digest():
+            problems.append("the job is listed but is not the whole job")
+    if len(set(state.files)) != len(state.files):
+        problems.append("a file is listed twice")
+    listed = {file_id for file_id, _ in state.files}
+    # the job became the last job when it started, while still uploading; if the cut
+    # then lost it, the last job can only be none
+    lost = None if new_id not in listed else new_id
+    if state.last_job not in (before.last_job, new_id, lost):
+        problems.append(f"last job {state.last_job!r} is neither the old nor the new one")
+    if state.nonvolatile not in _nonvolatile_written(rec, case.write):
+        problems.append(f"nonvolatile bytes {state.nonvolatile.hex()} were never written")
+    return problems
+
+
+def judge_printer(rec: Recording, case: Case, media: Media) -> list[str]:
+    """Power the survivor up, let it load, and judge its chips, flash and upload."""
+    virtual = VirtualPrinter(media=media)
+    virtual.settle()
+    fw = virtual.firmware
+    problems = []
+    for position, index in enumerate(CHIPS):
+        name = index.name.lower()
+        images = rec.chip_images(case.write, position)[-2:]
+        status = fw.eeproms.status(index)
+        data = bytes(fw.eeproms.states[index].data[:DATA_SIZE])
+        if status.name != "VALID":
+            problems.append(f"{name} EEPROM is {status.name} after power-up")
+        elif data not in [image[:DATA_SIZE] for image in images]:
+            problems.append(f"{name} EEPROM loaded an image that was not one of the last two "
+                            "written")
+    page = media.flash[HOURS_PAGE * PAGE_SIZE : (HOURS_PAGE + 1) * PAGE_SIZE]
+    before = rec.initial.flash[HOURS_PAGE * PAGE_SIZE : (HOURS_PAGE + 1) * PAGE_SIZE]
+    written = [w.data for w in rec.writes[: case.write] if w.medium == "flash"]
+    torn = case.mode == "partial" and rec.writes[case.write - 1].medium == "flash"
+    if page not in [before, *written[-1:]] and not torn:
+        problems.append("the hours page holds neither its old nor its new text")
+    printer = connect(virtual)
+    if printer.transact(b"\xb6")[1:9] != bytes(b & 0x7F for b in page[:8]):
+        problems.append("0xb6 does not report the hours page")
+    if fw.errors.is_set(ErrorBit.FLASH_CHECKSUM):
+        problems.append("FLASH_CHECKSUM after a cut that never touched the image")
+    printer.clear_errors()
+    sent = printer.send_file(JOB, JOB_ID, resume=True)
+    stored = fw.file_system.read_committed(make_id(JOB_ID))
+    if not sent.restarted:
+        problems.append("after power-up the printer still reported the upload open")
+    if stored != JOB:
+        problems.append("the job sent again with resume is not stored byte-identical")
+    return problems
+
+
+def check(rec: Recording, builder: MediaBuilder, case: Case) -> list[str]:
+    media = builder.survivor(case)
+    state, _ = _files_of(media)
+    problems = judge_card(rec, case, state) + judge_printer(rec, case, media)
+    return [f"[{case.id}] {p}" for p in problems]
+
+
+def replay(case_id: str) -> Media:
+    """Run one case for real: the scenario from the top, power failing at its write."""
+    case = Case.parse(case_id)
+    virtual = VirtualPrinter(media=initial_media())
+    virtual.settle()
+    virtual.supply(PowerPlan(cut_at=case.write, landing=case.landing()))
+    try:
+        scenario(virtual)
+    except PowerCut:
+        pass
+    else:
+        raise AssertionError(f"{case_id}: the scenario ended before the cut")
+    return virtual.media()
+
