@@ -351,7 +351,8 @@ class Printer:
                            "reset): sending it again from the start")
         if not resume or restarted:
             self.ack((b"\x97" if job else b"\x90") + stored, f"start {name}")
-        started = resume and first > 1
+        # a job whose run command was lost with the link is not running yet: ask
+        started = resume and not restarted and first > 1 and self.status().job == name
         watch = job and run
         noticed = set()
 

@@ -96,3 +96,54 @@ def test_unplugged_mid_upload_says_how_to_resume(monkeypatch, tmp_path):
     assert result.exit_code == 0, result.output
     files = virtual.firmware.file_system.file_list()
     assert files[-1].startswith(b"big_")
+
+
+@pytest.mark.parametrize("moment", ["after the ack", "before the ack"])
+def test_a_cable_pulled_at_every_chunk_of_a_printing_upload_then_resume(monkeypatch, tmp_path,
+                                                                        moment):
+    """send-job prints while it uploads; the cable goes at chunk c (once its ack has been
+    read, or while the host waits for it), for every c; `send-job --resume` then finishes
+    the upload and the card holds what an uninterrupted upload stores."""
+    job = tmp_path / "part.gcode"
+    job.write_bytes(b"".join(f"G1 X{i % 50 + 10} Y{i % 37 + 10} F6000\n".encode()
+                             for i in range(400)))
+    args = ("--device", "usb", "send-job", str(job), "--raw", "--id", "part")
+    original_write, original_read = VirtualRoboxBackend.bulk_write, VirtualRoboxBackend.bulk_read
+    device, virtual = attached(b"RBX-CLEAN")
+    monkeypatch.setattr(devices, "_usb_devices", lambda: [device])
+    assert run(*args).exit_code == 0
+    expected = virtual.firmware.file_system.read_committed(b"part".ljust(16, b"\0"))
+    assert expected == job.read_bytes().replace(b"\n", b"\r")
+    chunks = len(expected) // 512
+    assert chunks >= 10
+    for cut in range(chunks):
+        device, virtual = attached(b"RBX-PULL")
+        monkeypatch.setattr(devices, "_usb_devices", lambda device=device: [device])
+        state = {"armed": False}
+
+        def pull_write(self, dev_handle, ep, intf, data, timeout, cut=cut, state=state):
+            frame = bytes(data)
+            if frame[:1] == b"\x91" and int(frame[1:9], 16) == cut:
+                state["armed"] = True
+            elif state["armed"] and moment == "after the ack":
+                self.printer.usb.disconnect()
+            return original_write(self, dev_handle, ep, intf, data, timeout)
+
+        def pull_read(self, dev_handle, ep, intf, buff, timeout, state=state):
+            if state["armed"] and moment == "before the ack":
+                self.printer.usb.disconnect()
+            return original_read(self, dev_handle, ep, intf, buff, timeout)
+
+        monkeypatch.setattr(VirtualRoboxBackend, "bulk_write", pull_write)
+        monkeypatch.setattr(VirtualRoboxBackend, "bulk_read", pull_read)
+        first = run(*args)
+        assert first.exit_code == 1 and "--resume" in first.output, (cut, first.output)
+        monkeypatch.setattr(VirtualRoboxBackend, "bulk_write", original_write)
+        monkeypatch.setattr(VirtualRoboxBackend, "bulk_read", original_read)
+        virtual.usb.connect()
+        second = run(*args, "--resume")
+        assert second.exit_code == 0, (cut, second.output)
+        stored = virtual.firmware.file_system.read_committed(b"part".ljust(16, b"\0"))
+        assert stored == expected, f"cable pulled at chunk {cut} ({moment})"
+        assert virtual.run_until(lambda v=virtual: v.firmware.job.jobs_completed == 1, 600), \
+            f"the job did not print to its end after the cable was pulled at chunk {cut}"
