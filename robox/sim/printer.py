@@ -44,6 +44,10 @@ def default_state_dir() -> Path:
 def create_state(directory: Path) -> None:
     """Fill a state directory with a new printer (files already there are kept)."""
     directory.mkdir(parents=True, exist_ok=True)
+    # a process killed while it wrote one of these left its temporary file behind
+    for name in ("sdcard.img", "flash.bin", *CHIP_FILES.values()):
+        for stale in directory.glob(f".{name}.*.tmp"):
+            stale.unlink(missing_ok=True)
     card = directory / "sdcard.img"
     if not card.exists():
         _new_card(card)

@@ -200,3 +200,17 @@ def test_sim_serve_reports_a_fault_in_the_model_on_its_console(tmp_path, monkeyp
     assert said[0].startswith("robox sim: fault in the firmware model at t=")
     assert said[0].endswith("ValueError: cannot convert float NaN to integer")
     assert any("in broken" in line for line in said[1:])
+
+
+def test_a_new_start_removes_the_temporary_file_of_a_killed_one(tmp_path):
+    from robox.sim.printer import create_state
+
+    state = tmp_path / "printer"
+    state.mkdir()
+    stale = state / ".sdcard.img.k1ll3d.tmp"
+    stale.write_bytes(bytes(4096))
+    other = state / "notes.txt"
+    other.write_text("mine")
+    create_state(state)
+    assert not stale.exists() and other.read_text() == "mine"
+    assert (state / "sdcard.img").stat().st_size == 64 * 1024 * 1024
