@@ -25,6 +25,13 @@ class MemoryStorage:
         self.data = bytearray(data)
         self.size = len(self.data)
 
+    @classmethod
+    def adopt(cls, data: bytearray) -> MemoryStorage:
+        """A store over `data` itself, not a copy (the caller hands it over)."""
+        storage = cls(b"")
+        storage.data, storage.size = data, len(data)
+        return storage
+
     def read(self, offset: int, length: int) -> bytes:
         return bytes(self.data[offset : offset + length])
 

@@ -18,6 +18,8 @@ import random
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+import numpy as np
+
 from robox.errors import PowerCut
 from robox.firmware.error_flags import ErrorFlags
 from robox.firmware.file_system import FileSystem
@@ -93,17 +95,22 @@ def _slot_bytes(data: bytearray, start: int, length: int, capacity: int) -> byte
     return out[:length]
 
 
-def observe(fs: FileSystem) -> State:
-    """Mount (if needed) and read the state; file content straight from the medium."""
+def observe(fs: FileSystem, digests=None) -> State:
+    """Mount (if needed) and read the state; file content straight from the medium.
+
+    `digests(start, length)`, when given, may answer a file's digest from a cache; it is
+    not asked if the mount wrote to the card."""
+    writes = fs.card.writes
     fs.file_list()
     d = fs.directory
     assert d is not None, "a present, working card always mounts"
     data = fs.card.storage.data
-    files = tuple(
-        (d.slots[i].id, hashlib.sha1(_slot_bytes(data, d.slots[i].start_block,
-                                                 d.slots[i].length, fs.card.capacity)).hexdigest())
-        for i in d.ring()
-    )
+    capacity = fs.card.capacity
+    if digests is None or fs.card.writes != writes:
+        def digests(start, length):
+            return hashlib.sha1(_slot_bytes(data, start, length, capacity)).hexdigest()
+    files = tuple((d.slots[i].id, digests(d.slots[i].start_block, d.slots[i].length))
+                  for i in d.ring())
     last = None if d.last_job == NO_JOB else d.slots[d.last_job].id
     return State(files, last, d.nonvolatile)
 
@@ -185,19 +192,28 @@ class Media:
 
     def __init__(self, rec: Recording):
         self.rec = rec
-        self.data = bytearray(rec.initial)
+        self._reset()
+        self._digests: dict[tuple, str] = {}
+
+    def _reset(self) -> None:
+        self.data = bytearray(self.rec.initial)
         self.applied = 0
+        #: per block, the ordinal of the last write applied to it (0: none)
+        self.last_write = np.zeros(len(self.data) // BLOCK_SIZE, dtype=np.int64)
 
     def advance_to(self, n: int) -> None:
         if n < self.applied:
-            self.data, self.applied = bytearray(self.rec.initial), 0
+            self._reset()
+            self._digests.clear()
         while self.applied < n:
             block, data, _ = self.rec.writes[self.applied]
             self.data[block * BLOCK_SIZE : (block + 1) * BLOCK_SIZE] = data
             self.applied += 1
+            self.last_write[block] = self.applied
 
     def surviving_card(self, case: Case) -> SdCard:
         """The card after power failed at `case`."""
+        self._case = case
         if case.write == 0:
             self.advance_to(0)
             return SdCard(MemoryStorage(self.data))
@@ -208,7 +224,24 @@ class Media:
         tear = case.tear()
         data[offset : offset + BLOCK_SIZE] = tear.apply(
             bytes(data[offset : offset + BLOCK_SIZE]), new) if tear else new
-        return SdCard(MemoryStorage(data))
+        self._survivor = data
+        return SdCard(MemoryStorage.adopt(data))
+
+    def digest(self, start: int, length: int) -> str:
+        """The digest of a file of the last surviving card, cached by what wrote its
+        blocks: the same blocks last written by the same writes hold the same bytes."""
+        capacity = len(self.data) // BLOCK_SIZE
+        blocks = -(-length // BLOCK_SIZE)
+        first = min(blocks, capacity - start)
+        spans = [(start, start + first)] + ([(1, 1 + blocks - first)] if blocks > first else [])
+        newest = max((int(self.last_write[a:b].max()) for a, b in spans if b > a), default=0)
+        case = self._case
+        torn = case.write and any(a <= self.rec.writes[case.write - 1][0] < b for a, b in spans)
+        key = (start, length, newest, case.id if torn else None)
+        if key not in self._digests:
+            self._digests[key] = hashlib.sha1(
+                _slot_bytes(self._survivor, start, length, capacity)).hexdigest()
+        return self._digests[key]
 
 
 def op_of(rec: Recording, case: Case) -> int:
@@ -255,7 +288,7 @@ def check(rec: Recording, media: Media, case: Case, again: bool = True) -> list[
     """Mount the card that survives `case`, judge it, and use it again."""
     card = media.surviving_card(case)
     fs = FileSystem(card, ErrorFlags())
-    state = observe(fs)
+    state = observe(fs, media.digest if case.write else None)
     problems = judge(rec, case, state)
     if case.mode == "erase" and fs.last_mount.action == "format" and state.files == ():
         # Beyond the byte-mix model: with no copy in flight (an update that

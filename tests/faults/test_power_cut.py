@@ -180,3 +180,14 @@ def test_cuts_while_recovering_or_reusing_a_cut_card(rec):
             problems += [f"[{case.id} then {label}] {p}"
                          for p in campaign.judge_states(before, after, state)]
     assert not problems, report(problems)
+
+
+def test_the_digest_cache_answers_what_hashing_the_survivor_answers(rec):
+    """The campaign's file digests come from a cache keyed by the writes that last touched
+    a file's blocks; across cut points it gives what hashing the surviving card gives."""
+    media = Media(rec)
+    for case in list(campaign.cases(rec))[::7]:
+        cached = observe(FileSystem(media.surviving_card(case), ErrorFlags()),
+                         media.digest if case.write else None)
+        plain = observe(FileSystem(media.surviving_card(case), ErrorFlags()))
+        assert cached == plain, case.id
