@@ -24,7 +24,7 @@ from robox.errors import PowerCut
 from robox.firmware.error_flags import ErrorFlags
 from robox.firmware.file_system import FileSystem
 from robox.formats.sdcard import BLOCK_SIZE, NO_JOB
-from robox.hardware.faults import FaultPlan, Tear
+from robox.hardware.faults import FaultPlan, Landing, Tear
 from robox.hardware.sdcard import SdCard
 from robox.hardware.storage import MemoryStorage
 from tests.conftest import pattern, read_back, upload
@@ -147,7 +147,8 @@ def record(scenario: list[tuple] = SCENARIO, capacity: int = CAPACITY) -> Record
 
 @dataclass(frozen=True)
 class Case:
-    mode: str  # "cut" (write N lands whole), "prefix", "mix", "erase" (block left zero)
+    mode: str  # "cut" (write N lands whole), "prefix", "mix", "erase" (block left zero);
+    # in the printer campaign also a Landing's "whole", "garble" and "partial"
     write: int  # 1-based write ordinal; "cut" with 0 = power lost before any write
     param: int = 0
 
@@ -160,14 +161,11 @@ class Case:
         mode, write, param = text.split(":")
         return cls(mode, int(write), int(param))
 
+    def landing(self) -> Landing:
+        return Landing(self.mode, self.param)
+
     def tear(self) -> Tear | None:
-        if self.mode == "prefix":
-            return Tear(prefix=self.param)
-        if self.mode == "mix":
-            return Tear(seed=self.param)
-        if self.mode == "erase":
-            return Tear(fill=0)
-        return None
+        return self.landing().tear()
 
 
 def cases(rec: Recording, modes: tuple[str, ...] = MODES) -> Iterator[Case]:

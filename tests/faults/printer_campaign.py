@@ -44,14 +44,14 @@ from robox.formats.eeprom import DATA_SIZE, EepromIndex
 from robox.formats.firmware import HOURS_PAGE, PAGE_SIZE
 from robox.formats.protocol import ErrorBit
 from robox.formats.sdcard import BLOCK_SIZE, Directory, make_id
-from robox.hardware.faults import Landing, PowerPlan
+from robox.hardware.faults import PowerPlan
 from robox.hardware.sdcard import SdCard
 from robox.hardware.storage import MemoryStorage
 from robox.host.client import Printer, catch_up_lines
 from robox.host.transport import UsbTransport
 from robox.sim.printer import Media, VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
-from tests.faults.campaign import State, observe
+from tests.faults.campaign import Case, State, observe
 
 CARD_BLOCKS = 4096
 JOB_ID = "part"
@@ -160,41 +160,22 @@ def record() -> Recording:
 
 
 # ---------------------------------------------------------------------- cases
-@dataclass(frozen=True)
-class Case:
-    write: int  # 1-based ordinal in the recording's sequence
-    mode: str  # Landing mode
-    param: int = 0
-
-    @property
-    def id(self) -> str:
-        return f"{self.mode}:{self.write}:{self.param}"
-
-    @classmethod
-    def parse(cls, text: str) -> Case:
-        mode, write, param = text.split(":")
-        return cls(int(write), mode, int(param))
-
-    def landing(self) -> Landing:
-        return Landing(self.mode, self.param)
-
-
 def cases(rec: Recording) -> list[Case]:
     """Every write, landed whole and torn in each way its medium can tear."""
     rng = random.Random(2026)
     out = []
     for n, write in enumerate(rec.writes, 1):
-        out.append(Case(n, "whole"))
+        out.append(Case("whole", n))
         if write.medium == "card":
-            out.append(Case(n, "prefix", rng.randrange(1, BLOCK_SIZE)))
-            out.append(Case(n, "mix", n))
+            out.append(Case("prefix", n, rng.randrange(1, BLOCK_SIZE)))
+            out.append(Case("mix", n, n))
             if write.address in (0, 1):
-                out.append(Case(n, "erase"))
+                out.append(Case("erase", n))
         elif write.medium == "flash":
-            out += [Case(n, "partial", 0), Case(n, "partial", rng.randrange(1, 8))]
+            out += [Case("partial", n, 0), Case("partial", n, rng.randrange(1, 8))]
         else:
             old = MediaBuilder(rec).chip_byte(n, write)
-            out.append(Case(n, "garble", next(v for v in (old ^ 0xFF, 0x55, 0xAA)
+            out.append(Case("garble", n, next(v for v in (old ^ 0xFF, 0x55, 0xAA)
                                               if v not in (old, write.data[0]))))
     return out
 

@@ -73,7 +73,7 @@ def test_the_recorded_survivor_is_what_a_real_cut_leaves(rec):
 def test_the_reel_judge_sees_a_value_that_was_never_written(rec):
     """The judge can fail: a reel image nobody wrote is refused."""
     builder = campaign.MediaBuilder(rec)
-    case = campaign.Case(len(rec.writes), "whole")
+    case = campaign.Case("whole", len(rec.writes))
     media = builder.survivor(case)
     reel = bytearray(media.chips[EepromIndex.REEL0])
     virtual = VirtualPrinter(media=media)
