@@ -277,10 +277,9 @@ class HoursCounter:
         if job.running:
             if not job.paused():
                 self.run_ticks = (self.run_ticks + now - self.last_tick) & 0xFFFFFFFF
-        elif self.run_ticks > 0:
+        elif self.due():
             hours = float32(float8.parse(self._stored().split(b"\0", 1)[0])
                             + float32(self.run_ticks) / 3600000.0)
-            if self.fw.motion.empty():
-                self._program(f"{hours:f}        ".encode("ascii")[:8])
-                self.run_ticks = 0
+            self._program(f"{hours:f}        ".encode("ascii")[:8])
+            self.run_ticks = 0
         self.last_tick = now

@@ -70,13 +70,12 @@ class EepromChip:
                 self.data[address % CHIP_SIZE] = value & 0xFF
             return False
         self.writes += 1
-        landing = None if self.power is None else \
-            self.power.write(self, address % CHIP_SIZE, bytes([value & 0xFF]))
+        cell, value = address % CHIP_SIZE, value & 0xFF
+        landing = None if self.power is None else self.power.write(self, cell, bytes([value]))
         if landing is not None:
-            self.data[address % CHIP_SIZE] = (landing.param if landing.mode == "garble"
-                                              else value) & 0xFF
-            raise PowerCut(f"power cut while writing EEPROM byte {address % CHIP_SIZE:#x}")
-        self.data[address % CHIP_SIZE] = value & 0xFF
+            self.data[cell] = landing.param & 0xFF if landing.mode == "garble" else value
+            raise PowerCut(f"power cut while writing EEPROM byte {cell:#x}")
+        self.data[cell] = value
         self._busy_until = self._now() + self.write_cycle
         return True
 

@@ -125,8 +125,3 @@ class PowerPlan:
         if self.log is not None:
             self.log.append((device, address, bytes(data)))
         return self.landing if self.writes == self.cut_at else None
-
-    def describe(self) -> str:
-        if self.cut_at is None:
-            return "none"
-        return f"cut_at={self.cut_at}:{self.landing.mode}:{self.landing.param}"

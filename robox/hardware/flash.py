@@ -2,28 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from robox.errors import PowerCut
 from robox.formats.firmware import FLASH_SIZE, PAGE_SIZE
 from robox.hardware.storage import MemoryStorage, Storage
 
 
-@dataclass
-class FlashFaultPlan:
-    """Power fails during page write number `cut_at_write` (1-based): the page is erased
-    and only its first `landed` bytes are programmed."""
-
-    cut_at_write: int | None = None
-    landed: int = 0
-
-
 class Flash:
-    def __init__(self, storage: Storage | None = None, faults: FlashFaultPlan | None = None):
+    def __init__(self, storage: Storage | None = None):
         self.storage = storage or MemoryStorage(b"\xff" * FLASH_SIZE)
         if self.storage.size != FLASH_SIZE:
             raise ValueError(f"flash is {FLASH_SIZE} bytes, not {self.storage.size}")
-        self.faults = faults or FlashFaultPlan()
         self.page_writes = 0
         #: The printer's supply (a PowerPlan shared with the other media), if watched.
         self.power = None
@@ -37,10 +25,6 @@ class Flash:
     def write_page(self, number: int, data: bytes) -> None:
         data = bytes(data).ljust(PAGE_SIZE, b"\xff")[:PAGE_SIZE]
         self.page_writes += 1
-        if self.faults.cut_at_write == self.page_writes:
-            landed = self.faults.landed
-            self.storage.write(number * PAGE_SIZE, data[:landed] + b"\xff" * (PAGE_SIZE - landed))
-            raise PowerCut(f"power cut while writing flash page {number}")
         landing = self.power.write(self, number, data) if self.power is not None else None
         if landing is not None:
             landed = PAGE_SIZE if landing.mode == "whole" else landing.param

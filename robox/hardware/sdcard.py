@@ -87,13 +87,10 @@ class SdCard:
         self._check_access()
         self.writes += 1
         offset = block * BLOCK_SIZE
-        if self.faults.tear_write == self.writes:
-            old = self.storage.read(offset, BLOCK_SIZE)
-            self.storage.write(offset, self.faults.tear.apply(old, bytes(data)))
-            raise PowerCut(f"power cut during write {self.writes} (block {block})")
         landing = self.power.write(self, block, data) if self.power is not None else None
-        if landing is not None:
-            tear = landing.tear()
+        torn = self.faults.tear_write == self.writes
+        if torn or landing is not None:
+            tear = self.faults.tear if torn else landing.tear()
             old = self.storage.read(offset, BLOCK_SIZE)
             self.storage.write(offset, tear.apply(old, bytes(data)) if tear else bytes(data))
             raise PowerCut(f"power cut during write {self.writes} (block {block})")

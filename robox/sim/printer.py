@@ -152,7 +152,8 @@ class VirtualPrinter:
                      bytes(hw.flash.read(0, FLASH_SIZE)))
 
     def supply(self, plan) -> None:
-        """Power every nonvolatile medium from `plan` (a PowerPlan), or from the mains."""
+        """Power every nonvolatile medium from `plan` (a PowerPlan), or from the mains
+        (None)."""
         hw = self.hw
         for device in (hw.card, hw.flash, *hw.eeprom_bus.sockets):
             if device is not None:

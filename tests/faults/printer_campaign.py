@@ -133,7 +133,7 @@ class Recording:
 
 class _Recorder(PowerPlan):
     def __init__(self, virtual: VirtualPrinter):
-        super().__init__(log=[])
+        super().__init__()
         self.virtual = virtual
         hw = virtual.hw
         self.names = {id(hw.card): "card", id(hw.flash): "flash"}
@@ -163,6 +163,7 @@ def record() -> Recording:
 def cases(rec: Recording) -> list[Case]:
     """Every write, landed whole and torn in each way its medium can tear."""
     rng = random.Random(2026)
+    builder = MediaBuilder(rec)
     out = []
     for n, write in enumerate(rec.writes, 1):
         out.append(Case("whole", n))
@@ -174,7 +175,7 @@ def cases(rec: Recording) -> list[Case]:
         elif write.medium == "flash":
             out += [Case("partial", n, 0), Case("partial", n, rng.randrange(1, 8))]
         else:
-            old = MediaBuilder(rec).chip_byte(n, write)
+            old = builder.chip_byte(n, write)
             out.append(Case("garble", n, next(v for v in (old ^ 0xFF, 0x55, 0xAA)
                                               if v not in (old, write.data[0]))))
     return out
@@ -240,11 +241,9 @@ class MediaBuilder:
 
 
 # --------------------------------------------------------------------- judging
-def _files_of(media: Media) -> tuple[State, str]:
-    """The card's state as a mount shows it, and how the mount went."""
-    fs = FileSystem(SdCard(MemoryStorage(media.card)), ErrorFlags())
-    state = observe(fs)
-    return state, fs.last_mount.action if fs.last_mount else ""
+def files_of(media: Media) -> State:
+    """The card's state as a mount shows it."""
+    return observe(FileSystem(SdCard(MemoryStorage(media.card)), ErrorFlags()))
 
 
 def _nonvolatile_written(rec: Recording, n: int) -> set[bytes]:
@@ -266,7 +265,7 @@ def job_digest() -> str:
 
 
 def judge_card(rec: Recording, case: Case, state: State) -> list[str]:
-    before, _ = _files_of(rec.initial)
+    before = files_of(rec.initial)
     problems = [f"committed file {f[0]!r} lost or changed" for f in before.files
                 if f not in state.files]
     new_id = make_id(JOB_ID)
@@ -329,7 +328,7 @@ def judge_printer(rec: Recording, case: Case, media: Media) -> list[str]:
 
 def check(rec: Recording, builder: MediaBuilder, case: Case) -> list[str]:
     media = builder.survivor(case)
-    state, _ = _files_of(media)
+    state = files_of(media)
     problems = judge_card(rec, case, state) + judge_printer(rec, case, media)
     return [f"[{case.id}] {p}" for p in problems]
 

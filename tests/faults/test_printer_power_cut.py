@@ -42,7 +42,7 @@ def test_the_scenario_writes_every_medium_while_the_job_prints_and_uploads(rec):
     assert flash[0].time > rec.writes[last_chunk].time
     remaining = {w.intents[1][0xB8:0xC0] for w in rec.writes[:last_chunk]}
     assert len(remaining) >= 3  # the reel's remaining filament changed during the upload
-    state, _ = campaign._files_of(rec.final)
+    state = campaign.files_of(rec.final)
     assert (make_id(campaign.JOB_ID), campaign.job_digest()) in state.files
 
 

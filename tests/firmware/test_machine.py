@@ -8,7 +8,7 @@ from robox.errors import PowerCut
 from robox.formats.eeprom import EepromIndex
 from robox.formats.firmware import to_sd_text, word_sum
 from robox.formats.protocol import ErrorBit
-from robox.hardware.flash import FlashFaultPlan
+from robox.hardware.faults import Landing, PowerPlan
 from robox.sim import images
 from tests.firmware.wire import float8, ident, job_text
 
@@ -125,13 +125,13 @@ def test_a_firmware_file_still_being_written_does_not_count(wire):
 def test_a_power_cut_while_flashing_shows_at_boot(wire):
     image = images.firmware_image("r3cut", size=16 * 1024, seed=3)
     upload_firmware(wire, image)
-    wire.printer.hw.flash.faults = FlashFaultPlan(cut_at_write=10, landed=100)
+    wire.printer.supply(PowerPlan(cut_at=10, landing=Landing("partial", 100)))
     wire.usb.host_write(b"\x8f" + ident("firmware"))
     wire.printer.run_until(lambda: wire.usb.reply_waiting >= 65, 1.0)
     wire.usb.host_read(65)
     with pytest.raises(PowerCut):
         wire.printer.run_until(lambda: False, 1.0)
-    wire.printer.hw.flash.faults = FlashFaultPlan()
+    wire.printer.supply(None)
     from robox.firmware.main import Firmware
     fw = Firmware(wire.printer.hw)  # power comes back
     assert fw.errors.is_set(ErrorBit.FLASH_CHECKSUM)
