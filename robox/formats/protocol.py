@@ -121,10 +121,17 @@ REPLY_TO = {0x93: 0xE9, 0x95: 0xE7, 0x96: 0xE0, 0xA1: 0xE2, 0xA3: 0xE6, 0xA5: 0x
             0xFB: 0xFB, 0xFC: 0xEF}
 
 
+def is_text(data: bytes) -> bool:
+    """Whether `data` starts a text reply (a printer in Pronterface mode answers lines such
+    as ``ok``): every report code is 0x80 or above, every text byte below."""
+    return bool(data) and data[0] < 0x80
+
+
 def reply_length(data: bytes) -> int | None:
     """Total length of the report that `data` starts, once enough of it says; None until
-    then. ValueError for a byte that starts no report."""
-    if not data:
+    then, and for text (`is_text`), which carries no length and ends when the printer falls
+    quiet. ValueError for a byte that starts neither."""
+    if not data or is_text(data):
         return None
     code = data[0]
     if code in FIXED_REPLY_LENGTH:

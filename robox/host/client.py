@@ -27,6 +27,7 @@ from robox.formats.protocol import (
     ErrorBit,
     error_bits,
     error_names,
+    is_text,
     reply_length,
 )
 from robox.formats.sdcard import make_id
@@ -180,6 +181,10 @@ class Printer:
             reply = b""
             while True:
                 reply += self.transport.read(64, self.timeout)
+                if is_text(reply):
+                    raise ProtocolError(f"the printer answered in text ({reply[:8]!r}), not "
+                                        "a report: a text (Pronterface) host is using it or "
+                                        "left a line unfinished")
                 try:
                     length = reply_length(reply)
                 except ValueError:

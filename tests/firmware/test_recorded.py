@@ -203,3 +203,28 @@ def test_t1_makes_the_valve_position_negative(printer):
     queue(printer, b"G0 B1\n", 1.6)
     assert report(printer, b"M114\n") == b"X:0.000000 Y:0.000000 Z:0.000000 B:1.000000 T:1" \
         b"\r\nok\r\n"
+
+
+# recorded (mixed, seed 31, steps 0-2): the chunk's 512 bytes, as the host sent them
+SEED31_CHUNK_LINES = (
+    b"G1 X1 Y1 F1200\nM104 S0\nG92 E0\nG1 X0 Y0\nM106 S0\nG92 E0\nG1 E0.1 F300\n"
+    b"G1 E0.1 F300\nG1 X1 Y1 F1200\nM106 S0\nG90\nG92 E0\nG92 E0\nG90\nM106 S0\nG90\n"
+    b"G92 E0\nG92 E0\nG92 E0\nM106 S0\nG1 X1 Y1 F1200\nG1 X1 Y1 F1200\nM104 S0\nG90\n"
+    b"M104 S0\nG92 E0\nM104 S0\nM106 S0\nG1 X1 Y1 F1200\nG1 E0.1 F300\nG1 X0 Y0\n"
+    b"G92 E0\nG92 E0\nM106 S0\nG90\nG92 E0\nG90\nG92 E0\nG1 X0 Y0\nG1 X1 Y1 F1200\n"
+    b"; layer\nG90\n; layer\nG90\nM106 S0\nG1 X0 Y0\nG90\nG92 E0\nG1 E0.1 F300\n"
+    b"; layer\nM104 S0\n; layer\nG1 E0.1 F300\nM104 S0\nG92 E0\nG1 X1 Y1 F1200\nG90\n"
+    b"G1 E0.1 F300\nM106 S0\n; layer\n; l"
+)
+
+
+def test_a_frame_inside_an_unfinished_text_line_is_text(printer):
+    # A Pronterface line left without its end makes the next bytes text, frame codes and
+    # all: the chunk's 59 line ends complete 60 lines (the first holds "G1 E1 F300",
+    # 0xa1, 0x91 and the chunk number), every one answered "ok", all read as one reply.
+    assert len(SEED31_CHUNK_LINES) == 512
+    assert line(printer, b"G1 E1 F300") == b""
+    assert robox(printer, b"\xa1") == b""
+    reply = robox(printer, b"\x91ffffffff" + SEED31_CHUNK_LINES)
+    assert reply == b"ok\r\n" * 60
+    assert robox(printer, b"\xff") == b""  # the unfinished "; l" takes it as text too

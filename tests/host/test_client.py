@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from robox.cli import cli
 from robox.formats.protocol import reply_length
 from robox.gcode import prepare_job
-from robox.host.client import Printer, PrinterError
+from robox.host.client import Printer, PrinterError, ProtocolError
 from robox.host.transport import Disconnected, UsbTransport
 from robox.sim import images
 from robox.sim.printer import VirtualPrinter
@@ -237,3 +237,28 @@ def test_over_a_real_pty(served):
     summary = json.loads(result.output)
     assert summary["errors"] == []
     assert summary["id"] in json.loads(run("--device", served, "files", "--json").output)
+
+
+class LineEnds:
+    """A transport that ends every frame with a line end, as a text terminal would."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    def write(self, data, timeout_ms=5000):
+        self.inner.write(data + b"\n", timeout_ms)
+
+    def read(self, limit, timeout_ms=5000):
+        return self.inner.read(limit, timeout_ms)
+
+
+def test_a_text_reply_is_named_not_misread():
+    """A printer in the middle of another host's text (Pronterface) line takes a frame as
+    more text and answers "ok" once the line ends: the client says so instead of reading
+    the text as a report."""
+    v = VirtualPrinter()
+    v.settle()
+    v.usb.host_write(b"G1 X1")  # a text host's unfinished line
+    device = usb.core.find(idVendor=0x16D0, idProduct=0x081B, backend=VirtualRoboxBackend(v))
+    with pytest.raises(ProtocolError, match=r"answered in text \(b'ok\\r\\n'\)"):
+        Printer(LineEnds(UsbTransport(device)))
