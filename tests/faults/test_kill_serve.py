@@ -4,10 +4,11 @@ The state directory's files are written as the printer writes its media: the car
 and the flash in place, one block or page per write; each chip dump replaced whole
 (temporary file and rename). A process killed at any moment therefore leaves the
 card and flash as a power cut right after some write would, and each chip as it was
-at some moment: the power-cut campaigns judge those states. Here real processes are
-killed at moments spread over a session, from the state directory's creation to the
-end of the upload; after each the directory must open as a printer, pass the
-offline checks, keep every committed file, and take `send-job --resume`.
+at some moment: test_kill_every_write.py judges every such state of a served print.
+Here real processes are killed at moments spread over a session, from the state
+directory's creation to the end of the upload; after each the directory must open
+as a printer, pass the offline checks, keep every committed file, and take
+`send-job --resume`.
 """
 
 import hashlib
