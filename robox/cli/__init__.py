@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import sys
+import logging
 
 import click
 
@@ -22,10 +22,22 @@ from robox.cli.sim import sim
               help="usb (the one attached Robox), usb:ID (unique-ID prefix), serial:PATH, "
                    "sim (the built-in virtual printer) or sim:DIR. Default: $ROBOX_DEVICE, "
                    "else usb.")
+@click.option("--timeout", type=click.FloatRange(0.1, 3600.0), default=10.0,
+              envvar="ROBOX_TIMEOUT", show_default=True, metavar="SECONDS",
+              help="How long the printer may take to begin a reply. Default: $ROBOX_TIMEOUT, "
+                   "else 10.")
+@click.option("-v", "--verbose", count=True,
+              help="Log the wire on stderr: -v each command and reply, -vv their bytes.")
 @click.pass_context
-def cli(ctx: click.Context, device: str | None) -> None:
+def cli(ctx: click.Context, device: str | None, timeout: float, verbose: int) -> None:
     """Drive a CEL Robox printer, its virtual twin, and its card, EEPROM and firmware images."""
-    ctx.obj = {"device": device}
+    ctx.obj = {"device": device, "timeout": timeout}
+    if verbose:
+        handler = logging.StreamHandler()
+        handler.setFormatter(logging.Formatter("robox-cli: %(message)s"))
+        wire = logging.getLogger("robox.wire")
+        wire.addHandler(handler)
+        wire.setLevel(logging.DEBUG if verbose > 1 else logging.INFO)
 
 
 cli.add_command(sdcard)
@@ -39,4 +51,6 @@ for command in COMMANDS:
 
 
 def main() -> None:
-    sys.exit(cli.main(prog_name="robox-cli", standalone_mode=True))
+    from robox.launch import main as launch
+
+    launch()

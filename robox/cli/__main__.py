@@ -1,5 +1,5 @@
 """`python -m robox.cli` runs robox-cli."""
 
-from robox.cli import main
+from robox.launch import main
 
 main()

@@ -35,6 +35,10 @@ class RoboxGroup(click.Group):
             fail(exc.format_message(), exc.exit_code)
         except (click.Abort, KeyboardInterrupt):
             fail("interrupted", 130)
+        except BrokenPipeError:
+            from robox.launch import quiet_exit_after_broken_pipe
+
+            quiet_exit_after_broken_pipe()
         sys.exit(status if isinstance(status, int) else EXIT_OK)
 
     def invoke(self, ctx: click.Context):
@@ -44,6 +48,8 @@ class RoboxGroup(click.Group):
             fail(str(exc), EXIT_USAGE)
         except RoboxError as exc:
             fail(str(exc))
+        except BrokenPipeError:
+            raise
         except OSError as exc:
             where = f"{exc.filename}: " if exc.filename else ""
             fail(f"{where}{exc.strerror or exc}")
@@ -54,3 +60,23 @@ json_option = click.option("--json", "as_json", is_flag=True, help="Machine-read
 
 def emit_json(data: object) -> None:
     click.echo(json.dumps(data, indent=2))
+
+
+def at_terminal() -> bool:
+    return sys.stdin.isatty()
+
+
+yes_option = click.option("-y", "--yes", is_flag=True,
+                          help="Do it without asking (needed when not at a terminal).")
+
+
+def confirm(yes: bool, question: str) -> None:
+    """Ask before something that destroys data, unless `yes`; away from a terminal,
+    refuse rather than wait for an answer nobody can give."""
+    if yes:
+        return
+    if not at_terminal():
+        raise UsageError(f"{question.split('?')[0].rstrip()}? Not at a terminal: add --yes "
+                         "to confirm")
+    if not click.confirm(question + "?", default=False, err=True):
+        raise RoboxError("not confirmed: nothing was changed")

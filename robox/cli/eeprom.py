@@ -25,10 +25,15 @@ def eeprom() -> None:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False),
               help="The dump file to write.")
 @set_option
-def new_cmd(kind: str, output: str, assignments: tuple[str, ...]) -> None:
-    """Write a KIND EEPROM dump with both banks valid (fields zero unless --set)."""
+@json_option
+def new_cmd(kind: str, output: str, assignments: tuple[str, ...], as_json: bool) -> None:
+    """Write a KIND EEPROM dump with both banks valid (a reel's multipliers 1.0, every
+    other field zero, unless --set)."""
     write_atomically(output, dumps.new_dump(kind, list(assignments)))
-    click.echo(f"{output}: new {kind} EEPROM, both banks valid")
+    if as_json:
+        emit_json({"dump": output, "kind": kind, "set": list(assignments)})
+    else:
+        click.echo(f"{output}: new {kind} EEPROM, both banks valid")
 
 
 @eeprom.command("show")
@@ -60,9 +65,13 @@ def show_cmd(dump: str, kind: str | None, as_json: bool) -> None:
 @click.argument("dump", type=click.Path(dir_okay=False, readable=False))
 @click.argument("assignments", nargs=-1, required=True, metavar="FIELD=VALUE...")
 @click.option("--kind", type=KINDS, help="Field map to use (default: guessed).")
-def set_cmd(dump: str, assignments: tuple[str, ...], kind: str | None) -> None:
+@json_option
+def set_cmd(dump: str, assignments: tuple[str, ...], kind: str | None, as_json: bool) -> None:
     """Change fields the way the printer does, leaving both banks valid."""
     result = dumps.set_dump(dump, list(assignments), kind)
+    if as_json:
+        emit_json(result)
+        return
     click.echo(f"{dump}: set {', '.join(result['changed'])} ({result['kind']} EEPROM, "
                f"{result['writes']} bytes rewritten)")
 

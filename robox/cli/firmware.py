@@ -62,16 +62,24 @@ def verify_cmd(file: str, offset_text: str, as_json: bool) -> None:
 @firmware.command("to-sd")
 @click.argument("bin_file", metavar="BIN", type=click.Path(dir_okay=False, readable=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False))
-def to_sd_cmd(bin_file: str, output: str) -> None:
+@json_option
+def to_sd_cmd(bin_file: str, output: str, as_json: bool) -> None:
     """Write BIN as an SD firmware file (two upper-case hex digits per byte)."""
     result = images.to_sd(bin_file, output)
+    if as_json:
+        emit_json(result)
+        return
     click.echo(f"{output}: {result['characters']} characters from {result['bytes']} bytes")
 
 
 @firmware.command("from-sd")
 @click.argument("file", type=click.Path(dir_okay=False, readable=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False))
-def from_sd_cmd(file: str, output: str) -> None:
+@json_option
+def from_sd_cmd(file: str, output: str, as_json: bool) -> None:
     """Write the binary held in an SD firmware file."""
     result = images.from_sd(file, output)
+    if as_json:
+        emit_json(result)
+        return
     click.echo(f"{output}: {result['bytes']} bytes from {result['characters']} characters")

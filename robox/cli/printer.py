@@ -9,12 +9,12 @@ from pathlib import Path
 
 import click
 
-from robox.cli.common import emit_json, json_option
+from robox.cli.common import confirm, emit_json, json_option, yes_option
 from robox.cli.gcode import macros_option, nozzle_option
 from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.firmware import image_revision
 from robox.formats.protocol import error_names
-from robox.formats.sdcard import make_id
+from robox.formats.sdcard import default_id, make_id
 from robox.gcode import JobFile, Options, job_file
 from robox.gcode.files import inspect
 from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
@@ -29,14 +29,13 @@ POLL_S = 0.5
 
 
 def device(ctx: click.Context):
-    return open_printer(ctx.obj.get("device") if ctx.obj else None)
+    options = ctx.obj or {}
+    return open_printer(options.get("device"), options.get("timeout", 10.0))
 
 
 def job_id_for(path: Path, sha1: str) -> str:
-    """A fresh id for this job's content: the name's start and the start of the content's
-    SHA-1 (so the same file resumes under the same id)."""
-    stem = "".join(c for c in path.stem if c.isascii() and c.isalnum())[:7] or "job"
-    return f"{stem}_{sha1[:16 - len(stem) - 1]}"
+    """A job's default id: see `formats.sdcard.default_id`."""
+    return default_id(path.stem, sha1)
 
 
 @click.command("printers")
@@ -67,16 +66,36 @@ def status_cmd(ctx, as_json: bool) -> None:
     if as_json:
         emit_json(data)
         return
-    click.echo(f"job: {status.job or 'none'} (line {status.line}, {status.pause})"
-               f"{', busy' if status.busy else ''}")
+    click.echo(describe_job(status))
     for name, t in status.temperatures.items():
-        click.echo(f"{name}: {t['measured']:.1f} °C, target {t['target']:.1f}")
+        click.echo(f"{name}: {t['measured']:.1f} °C, {describe_heater(t)}")
     click.echo("position: " + " ".join(f"{a}{v:.3f}" for a, v in status.position.items())
                + f" T{status.tool}")
     click.echo("EEPROMs: " + ", ".join(f"{k} {v}" for k, v in status.eeproms.items()
                                        if k != "dual_reel_adaptor"))
     click.echo(f"SD card: {'present' if status.sd_card else 'absent'}")
     click.echo(f"errors: {', '.join(errors) or 'none'}")
+
+
+def describe_job(status) -> str:
+    if status.job is None:
+        return "job: none" + (" (busy)" if status.busy else "")
+    state = "printing" if status.pause == "running" else status.pause
+    return f"job: {status.job} (line {status.line}, {state})"
+
+
+#: A heater's mode digit in the status report: which of its targets it heats to.
+HEATER_MODES = {"0": None, "1": "target", "2": "first_layer_target"}
+
+
+def describe_heater(t: dict) -> str:
+    if t["mode"] == "3":
+        return "heating to the filament unload temperature"
+    which = HEATER_MODES.get(t["mode"])
+    if which is None or which not in t:
+        return "off"
+    label = "first-layer target" if which == "first_layer_target" else "target"
+    return f"{label} {t[which]:.1f}"
 
 
 @click.command("files")
@@ -253,8 +272,9 @@ def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool) -
 
 @click.command("run-job")
 @click.argument("file_id", metavar="[ID]", required=False)
+@json_option
 @click.pass_context
-def run_job_cmd(ctx, file_id: str | None) -> None:
+def run_job_cmd(ctx, file_id: str | None, as_json: bool) -> None:
     """Print a job already on the card (no ID: the last job run)."""
     if file_id is not None:
         make_id(file_id)  # refuses an empty or non-ASCII id
@@ -263,39 +283,112 @@ def run_job_cmd(ctx, file_id: str | None) -> None:
         if file_id and file_id not in printer.files():
             raise NotFoundError(f"no job {file_id!r} on the printer's card")
         printer.run_job(file_id)
-        if printer.status().job is None:
+        started = printer.status().job
+        if started is None:
             raise RoboxError("the printer did not start the job (no last job?)")
-    click.echo(f"printing {file_id or 'the last job'}")
+    if as_json:
+        emit_json({"printing": started})
+    else:
+        click.echo(f"printing {started}")
 
 
-def _simple(name: str, method: str, help_text: str, done: str):
-    @click.command(name, help=help_text)
-    @click.pass_context
-    def command(ctx) -> None:
-        with device(ctx) as printer:
-            getattr(printer, method)()
-        click.echo(done)
-    return command
+#: Pause states of a job that is paused or parking (a "resuming" job is unparking).
+PAUSED = {"pausing", "paused", "selfie pause"}
 
 
-pause_cmd = _simple("pause", "pause", "Pause the job (the head parks).", "paused")
-resume_cmd = _simple("resume", "resume", "Resume a paused job.", "resumed")
-abort_cmd = _simple("abort", "abort", "Abort the job (heaters off).", "aborted")
-reset_cmd = _simple("reset", "reset", "Reset the printer.", "reset")
+def _job_state(status) -> dict:
+    return {"job": status.job, "line": status.line,
+            "state": None if status.job is None else
+            ("printing" if status.pause == "running" else status.pause)}
+
+
+def _pause_or_resume(ctx, as_json: bool, pause: bool) -> None:
+    """Pause (or resume) the job unless it already is; say which happened."""
+    with device(ctx) as printer:
+        before = printer.status()
+        if before.job is None:
+            raise NotFoundError("no job is printing: nothing to pause" if pause
+                                else "no job on the printer: nothing to resume")
+        was_paused = before.pause in PAUSED
+        if was_paused != pause:
+            (printer.pause if pause else printer.resume)()
+        after = printer.status()
+    if as_json:
+        emit_json({**_job_state(after), "was_paused": was_paused})
+        return
+    job, line = after.job, after.line
+    if pause:
+        click.echo(f"{job} was already paused, at line {line}" if was_paused
+                   else f"paused {job} at line {line}")
+    else:
+        click.echo(f"resumed {job} at line {line}" if was_paused
+                   else f"{job} was not paused: still printing, at line {line}")
+
+
+@click.command("pause")
+@json_option
+@click.pass_context
+def pause_cmd(ctx, as_json: bool) -> None:
+    """Pause the job (the head parks). Exits 1 when no job is printing."""
+    _pause_or_resume(ctx, as_json, pause=True)
+
+
+@click.command("resume")
+@json_option
+@click.pass_context
+def resume_cmd(ctx, as_json: bool) -> None:
+    """Resume a paused job. Exits 1 when there is no job."""
+    _pause_or_resume(ctx, as_json, pause=False)
+
+
+@click.command("abort")
+@json_option
+@click.pass_context
+def abort_cmd(ctx, as_json: bool) -> None:
+    """Abort the job and switch the heaters off (with no job, the heaters only)."""
+    with device(ctx) as printer:
+        before = printer.status()
+        printer.abort()
+    result = {"aborted": before.job, "line": before.line if before.job else None}
+    if as_json:
+        emit_json(result)
+    elif before.job is None:
+        click.echo("no job was printing; heaters switched off")
+    else:
+        click.echo(f"aborted {before.job} at line {before.line}; heaters switched off")
+
+
+@click.command("reset")
+@json_option
+@click.pass_context
+def reset_cmd(ctx, as_json: bool) -> None:
+    """Reset the printer (as switching it off and on, keeping the power)."""
+    with device(ctx) as printer:
+        printer.reset()
+    if as_json:
+        emit_json({"reset": True})
+    else:
+        click.echo("reset")
 
 
 @click.command("gcode")
 @click.argument("lines", nargs=-1, required=True)
+@json_option
 @click.pass_context
-def gcode_cmd(ctx, lines: tuple[str, ...]) -> None:
+def gcode_cmd(ctx, lines: tuple[str, ...], as_json: bool) -> None:
     """Send G-code lines; prints the response of reporting codes (M105, M114, ...)."""
+    for line in lines:
+        if not line.isascii():
+            raise UsageError(f"{line!r} is not ASCII G-code")
+    answers = []
     with device(ctx) as printer:
         for line in lines:
-            if not line.isascii():
-                raise UsageError(f"{line!r} is not ASCII G-code")
-            response = printer.gcode(line + "\r")
-            if response:
-                click.echo(response.replace("\r\n", "\n"), nl=False)
+            response = printer.gcode(line + "\r").replace("\r\n", "\n")
+            answers.append({"line": line, "response": response})
+            if response and not as_json:
+                click.echo(response, nl=False)
+    if as_json:
+        emit_json(answers)
 
 
 @click.command("errors")
@@ -333,8 +426,9 @@ def read_eeprom_cmd(ctx, which: str, as_json: bool) -> None:
 @click.command("write-eeprom")
 @click.argument("which", type=WHICH)
 @click.argument("assignments", nargs=-1, required=True, metavar="FIELD=VALUE...")
+@json_option
 @click.pass_context
-def write_eeprom_cmd(ctx, which: str, assignments: tuple[str, ...]) -> None:
+def write_eeprom_cmd(ctx, which: str, assignments: tuple[str, ...], as_json: bool) -> None:
     """Change fields of a head or reel EEPROM."""
     from robox.formats import eeprom as fmt
 
@@ -347,23 +441,33 @@ def write_eeprom_cmd(ctx, which: str, assignments: tuple[str, ...]) -> None:
             raise UsageError(str(exc)) from None
     with device(ctx) as printer:
         printer.write_eeprom_fields(which, pairs)
-    click.echo(f"{which}: set {', '.join(pairs)}")
+    if as_json:
+        emit_json({"eeprom": which, "set": pairs})
+    else:
+        click.echo(f"{which}: set {', '.join(pairs)}")
 
 
 @click.command("format-eeprom")
 @click.argument("which", type=WHICH)
+@yes_option
+@json_option
 @click.pass_context
-def format_eeprom_cmd(ctx, which: str) -> None:
-    """Format (zero) a head or reel EEPROM."""
+def format_eeprom_cmd(ctx, which: str, yes: bool, as_json: bool) -> None:
+    """Format (zero) a head or reel EEPROM: its calibration or filament data is lost."""
+    confirm(yes, f"Format the {which} EEPROM? Everything it holds is lost")
     with device(ctx) as printer:
         printer.format_eeprom(which)
-    click.echo(f"{which}: formatted")
+    if as_json:
+        emit_json({"eeprom": which, "formatted": True})
+    else:
+        click.echo(f"{which}: formatted")
 
 
 @click.command("update-firmware")
 @click.argument("bin_file", metavar="BIN", type=click.Path(dir_okay=False, readable=False))
+@json_option
 @click.pass_context
-def update_firmware_cmd(ctx, bin_file: str) -> None:
+def update_firmware_cmd(ctx, bin_file: str, as_json: bool) -> None:
     """Verify BIN, upload it, flash it, and check the printer comes back."""
     image = read_input(bin_file)
     with device(ctx) as printer:
@@ -377,7 +481,10 @@ def update_firmware_cmd(ctx, bin_file: str) -> None:
     if declared is not None and after != declared:
         raise RoboxError(f"the printer came back with firmware {after}, but the image is "
                          f"{declared}: the update did not take")
-    click.echo(f"firmware {before} -> {after}")
+    if as_json:
+        emit_json({"before": before, "after": after})
+    else:
+        click.echo(f"firmware {before} -> {after}")
 
 
 COMMANDS = [printers_cmd, status_cmd, files_cmd, send_job_cmd, run_job_cmd, pause_cmd,

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import hashlib
 import sys
 from pathlib import Path
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, emit_json, json_option
-from robox.errors import UsageError
+from robox.cli.common import EXIT_PROBLEM, confirm, emit_json, json_option, yes_option
 from robox.fileio import open_input, write_atomically
+from robox.formats.sdcard import default_id
 from robox.offline import sdcard as images
 
 
@@ -22,11 +23,14 @@ def sdcard() -> None:
 @click.argument("image", type=click.Path(dir_okay=False, readable=False))
 @click.option("--size", help="Card size: 8MiB, 512KiB, 1GiB or a block count such as 16384b. "
                              "Required to create an image.")
+@yes_option
 @json_option
-def format_cmd(image: str, size: str | None, as_json: bool) -> None:
-    """Create IMAGE as a freshly formatted card, or reformat an existing card image."""
+def format_cmd(image: str, size: str | None, yes: bool, as_json: bool) -> None:
+    """Create IMAGE as a freshly formatted card, or reformat an existing card image
+    (its files are lost: asks first, unless --yes)."""
     blocks = images.parse_size(size) if size is not None else None
-    result = images.format_image(image, blocks)
+    result = images.format_image(
+        image, blocks, lambda: confirm(yes, f"Reformat {image}? Every file on it is lost"))
     if as_json:
         emit_json(result)
     else:
@@ -57,17 +61,20 @@ def ls_cmd(image: str, as_json: bool) -> None:
 @sdcard.command("put")
 @click.argument("image", type=click.Path(dir_okay=False, readable=False))
 @click.argument("file", type=click.Path(dir_okay=False, readable=False))
-@click.option("--id", "file_id", help="File id (at most 16 ASCII bytes); default: the first "
-                                      "16 characters of FILE's name.")
+@click.option("--id", "file_id", help="File id (at most 16 ASCII bytes); default: as "
+                                      "send-job's, the start of FILE's name and of its "
+                                      "content's SHA-1.")
 @click.option("--job", is_flag=True, help="Mark the file as a print job.")
 @json_option
 def put_cmd(image: str, file: str, file_id: str | None, job: bool, as_json: bool) -> None:
     """Store FILE on IMAGE as a printer receives it (start, 512-byte chunks, end)."""
-    if file_id is None:
-        file_id = Path(file).name[:16]
-        if not file_id.isascii():
-            raise UsageError(f"{file}: the name is not ASCII; give an id with --id")
     with open_input(file, "a file to store") as source:
+        if file_id is None:
+            digest = hashlib.sha1()
+            for block in iter(lambda: source.read(1 << 16), b""):
+                digest.update(block)
+            source.seek(0)
+            file_id = default_id(Path(file).stem, digest.hexdigest())
         result = images.put_stream(image, source, file_id, job)
     if as_json:
         emit_json(result)

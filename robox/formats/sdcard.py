@@ -47,6 +47,15 @@ def blocks_for(length: int) -> int:
     return -(-length // BLOCK_SIZE)
 
 
+def default_id(name: str, sha1_hex: str) -> str:
+    """The id robox gives a file stored without one (send-job, sdcard put): the first
+    alphanumerics of its name, then the start of its content's SHA-1, 16 characters in
+    all, so the same content under the same name always gets the same id (an upload
+    resumes under it) and different contents get different ids."""
+    stem = "".join(c for c in name if c.isascii() and c.isalnum())[:7] or "file"
+    return f"{stem}_{sha1_hex[:ID_SIZE - len(stem) - 1]}"
+
+
 def make_id(value: str | bytes) -> bytes:
     """The 16-byte id stored for `value`: up to its first NUL, NUL padded.
 

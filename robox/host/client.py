@@ -10,6 +10,7 @@ and do not stop every command.
 from __future__ import annotations
 
 import io
+import logging
 import time
 from array import array
 from bisect import bisect_left
@@ -34,6 +35,10 @@ from robox.formats.sdcard import make_id
 from robox.host.transport import NoReply, TransportError
 
 CHUNK = 512
+#: How long a reply may take to begin before the printer counts as not answering.
+DEFAULT_TIMEOUT_MS = 10_000
+#: -v logs each command and its reply in a line; -vv adds their bytes in hex.
+wire_log = logging.getLogger("robox.wire")
 #: While a job prints from its own upload, the status is checked every this many chunks
 #: for the pause a printer makes when its reader catches up with the writer.
 CATCH_UP_CHECK_CHUNKS = 8
@@ -155,10 +160,17 @@ class Status:
                    report[220:221] == b"1", bytes(report))
 
 
+def log_exchange(frame: bytes, reply: bytes) -> None:
+    wire_log.info("sent %#04x (%d bytes), got %#04x (%d bytes)", frame[0], len(frame),
+                  reply[0], len(reply))
+    wire_log.debug("  > %s", frame.hex(" "))
+    wire_log.debug("  < %s", reply.hex(" "))
+
+
 class Printer:
     """A printer at the other end of a transport."""
 
-    def __init__(self, transport, reply_timeout_ms: int = 10000,
+    def __init__(self, transport, reply_timeout_ms: int = DEFAULT_TIMEOUT_MS,
                  idle: Callable[[float], None] | None = None):
         self.transport = transport
         self.timeout = reply_timeout_ms
@@ -192,6 +204,8 @@ class Printer:
                 if length is not None and len(reply) >= length:
                     break
             expected = REPLY_TO.get(frame[0], 0xE3)
+            if wire_log.isEnabledFor(logging.INFO):
+                log_exchange(frame, reply)
             if reply[0] != expected or len(reply) != length:
                 raise ProtocolError(f"asked {frame[0]:#04x}, got a {reply[0]:#04x} report")
             return reply

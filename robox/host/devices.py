@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from robox.errors import RoboxError, UsageError
-from robox.host.client import Printer
+from robox.host.client import DEFAULT_TIMEOUT_MS, Printer
 from robox.host.transport import (
     PRODUCT_ID,
     VENDOR_ID,
@@ -51,11 +51,11 @@ def _usb_devices():
         raise NoPrinter("no USB backend: install libusb (Debian: libusb-1.0-0)") from None
 
 
-def _open_usb(device) -> Printer:
+def _open_usb(device, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Printer:
     import usb.core
 
     try:
-        return Printer(UsbTransport(device))
+        return Printer(UsbTransport(device), timeout_ms)
     except usb.core.USBError as exc:
         if exc.errno in (errno.EACCES, errno.EPERM):
             raise PermissionDenied(permission_hint()) from None
@@ -74,15 +74,15 @@ def list_printers() -> list[Attached]:
     return found
 
 
-def _select_usb(prefix: str | None) -> Printer:
+def _select_usb(prefix: str | None, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Printer:
     devices = _usb_devices()
     if not devices:
         raise NoPrinter("no Robox is attached over USB (VID 16D0, PID 081B)")
     if prefix is None and len(devices) == 1:
-        return _open_usb(devices[0])
+        return _open_usb(devices[0], timeout_ms)
     matches, ids = [], []
     for device in devices:
-        printer = _open_usb(device)
+        printer = _open_usb(device, timeout_ms)
         unique = printer.unique_id()
         ids.append(unique)
         if prefix is not None and unique.startswith(prefix):
@@ -101,7 +101,7 @@ def _select_usb(prefix: str | None) -> Printer:
 
 
 @contextlib.contextmanager
-def _sim(directory: Path) -> Iterator[Printer]:
+def _sim(directory: Path, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Iterator[Printer]:
     import usb.core
 
     from robox.sim.printer import VirtualPrinter, create_state
@@ -117,7 +117,7 @@ def _sim(directory: Path) -> Iterator[Printer]:
         def idle(seconds: float) -> None:
             virtual.run_until(lambda: False, max(seconds, SIM_STEP_S), between_lines=False)
 
-        printer = Printer(UsbTransport(device), idle=idle)
+        printer = Printer(UsbTransport(device), timeout_ms, idle=idle)
         printer.virtual = virtual
         yield printer
     finally:
@@ -129,22 +129,25 @@ def _sim(directory: Path) -> Iterator[Printer]:
 
 
 @contextlib.contextmanager
-def open_printer(spec: str | None) -> Iterator[Printer]:
-    """The printer chosen by `spec` (default: $ROBOX_DEVICE, else `usb`)."""
+def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000
+                 ) -> Iterator[Printer]:
+    """The printer chosen by `spec` (default: $ROBOX_DEVICE, else `usb`); a reply not
+    begun within `timeout_s` is an error (NoReply)."""
+    timeout_ms = max(1, round(timeout_s * 1000))
     spec = spec or os.environ.get(ENVIRONMENT) or "usb"
     kind, _, rest = spec.partition(":")
     if kind == "sim":
         from robox.sim.printer import default_state_dir
 
-        with _sim(Path(rest) if rest else default_state_dir()) as printer:
+        with _sim(Path(rest) if rest else default_state_dir(), timeout_ms) as printer:
             yield printer
         return
     if kind == "usb":
-        printer = _select_usb(rest or None)
+        printer = _select_usb(rest or None, timeout_ms)
     elif kind == "serial":
         if not rest:
             raise UsageError("serial needs a path: --device serial:/dev/ttyACM0")
-        printer = Printer(SerialTransport(rest))
+        printer = Printer(SerialTransport(rest), timeout_ms)
     else:
         raise UsageError(f"unknown device {spec!r}: use usb, usb:ID, serial:PATH, sim or "
                          "sim:DIR")

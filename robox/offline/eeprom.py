@@ -57,10 +57,15 @@ def _encode_all(kind: str, pairs: list[tuple[str, str]]) -> list[tuple[fmt.Field
     return encoded
 
 
+#: Fields a new dump holds unless set: a multiplier of 0 would make a reel extrude nothing.
+NEW_DEFAULTS = {"reel": ["filament_multiplier=1.0", "feed_rate_multiplier=1.0"], "head": []}
+
+
 def new_dump(kind: str, assignments: list[str]) -> bytes:
-    """A chip image with both banks valid: zeroed data with the given fields set."""
+    """A chip image with both banks valid: zeroed data, a reel's multipliers 1.0, and
+    the given fields set."""
     data = bytearray(DATA_SIZE)
-    for f, raw in _encode_all(kind, parse_assignments(assignments)):
+    for f, raw in _encode_all(kind, parse_assignments(NEW_DEFAULTS[kind] + assignments)):
         data[f.offset : f.offset + f.size] = raw
     return fmt.chip_image(bytes(data))
 

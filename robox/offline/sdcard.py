@@ -12,7 +12,7 @@ import contextlib
 import io
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
@@ -108,8 +108,11 @@ def _looks_like_card(card: SdCard) -> bool:
     return directory.capacity == card.capacity or not any(block0)
 
 
-def format_image(path: str | os.PathLike, blocks: int | None) -> dict:
-    """Create a formatted image of `blocks` blocks, or reformat an existing image."""
+def format_image(path: str | os.PathLike, blocks: int | None,
+                 confirm: Callable[[], None] | None = None) -> dict:
+    """Create a formatted image of `blocks` blocks, or reformat an existing image (once
+    every check has passed, `confirm()` is called before its files are dropped; it raises
+    to stop)."""
     target = Path(path)
     if target.exists():
         if target.is_dir():
@@ -123,6 +126,8 @@ def format_image(path: str | os.PathLike, blocks: int | None) -> dict:
                 raise ImageError(f"{path}: block 0 is not a card directory (its capacity field "
                                  f"says {found} blocks, the image holds {card.capacity}); "
                                  "refusing to overwrite a file that is not a card image")
+            if confirm is not None:
+                confirm()
             errors = ErrorFlags()
             if not FileSystem(card, errors).format():
                 raise _fs_errors(errors, f"{path}: format failed")

@@ -1,5 +1,6 @@
 """robox-cli sdcard, as a user runs it: exit codes, output, and files left untouched."""
 
+import hashlib
 import json
 import os
 import subprocess
@@ -65,7 +66,7 @@ def test_format_needs_a_size_to_create(fs):
 
 
 def test_reformat_of_an_existing_card_drops_its_files(fake):
-    assert run("sdcard", "format", "/card.img").exit_code == 0
+    assert run("sdcard", "format", "/card.img", "--yes").exit_code == 0
     listing = json.loads(run("sdcard", "ls", "/card.img", "--json").output)
     assert listing["files"] == []
 
@@ -120,11 +121,13 @@ def test_put_then_get_round_trips_byte_exact(fake):
     result = run("sdcard", "put", "/card.img", "/a_rather_long_file_name.gcode", "--job")
     assert result.exit_code == 0, result.output
     ids = [e["id"] for e in json.loads(run("sdcard", "ls", "/card.img", "--json").output)["files"]]
-    assert ids[-1] == "a_rather_long_fi"  # the first 16 characters of the name
+    # send-job's rule: the name's first alphanumerics, then the content's SHA-1
+    expected_id = "arather_" + hashlib.sha1(data).hexdigest()[:8]
+    assert ids[-1] == expected_id
     assert "home_macro" not in ids  # the newest non-job made room
-    assert run("sdcard", "get", "/card.img", "a_rather_long_fi", "-o", "/out.bin").exit_code == 0
+    assert run("sdcard", "get", "/card.img", expected_id, "-o", "/out.bin").exit_code == 0
     assert Path("/out.bin").read_bytes() == data
-    stdout = CliRunner().invoke(cli, ["sdcard", "get", "/card.img", "a_rather_long_fi"])
+    stdout = CliRunner().invoke(cli, ["sdcard", "get", "/card.img", expected_id])
     assert stdout.stdout_bytes == data
 
 
@@ -158,9 +161,11 @@ def test_put_refuses_bad_ids_and_leaves_the_image(fake, args, status, words):
     assert Path("/card.img").read_bytes() == before
 
 
-def test_put_refuses_a_non_ascii_name_without_an_id(fake):
+def test_put_names_a_non_ascii_file_from_its_ascii_letters(fake):
     Path("/t\u00e9st.gcode").write_bytes(b"G28\r")
-    one_line_error(run("sdcard", "put", "/card.img", "/t\u00e9st.gcode"), 2, "--id")
+    result = run("sdcard", "put", "/card.img", "/t\u00e9st.gcode", "--json")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["id"] == "tst_" + hashlib.sha1(b"G28\r").hexdigest()[:12]
 
 
 def test_put_refuses_a_file_larger_than_the_card(fake):

@@ -95,7 +95,7 @@ def test_eeprom_round_trips(state):
     assert fields["remaining_filament"] == 1234.5 and fields["friendly_name"] == "Test reel"
     dump = json.loads(run("eeprom", "show", str(state / "reel0.eeprom"), "--json").output)
     assert dump["fields"]["remaining_filament"]["value"] == 1234.5  # banks written, saved
-    assert sim(state, "format-eeprom", "head").exit_code == 0
+    assert sim(state, "format-eeprom", "head", "--yes").exit_code == 0
     assert json.loads(sim(state, "read-eeprom", "head", "--json").output)["type_code"] == ""
     one_line_error(sim(state, "write-eeprom", "reel0", "nope=1"), 2, "no reel EEPROM field")
 
