@@ -32,10 +32,13 @@ from robox.cli.sim import sim
 def cli(ctx: click.Context, device: str | None, timeout: float, verbose: int) -> None:
     """Drive a CEL Robox printer, its virtual twin, and its card, EEPROM and firmware images."""
     ctx.obj = {"device": device, "timeout": timeout}
+    wire = logging.getLogger("robox.wire")
+    wire.handlers.clear()  # one command's settings, even when called again in one process
+    wire.propagate = False
+    wire.setLevel(logging.WARNING)
     if verbose:
         handler = logging.StreamHandler()
         handler.setFormatter(logging.Formatter("robox-cli: %(message)s"))
-        wire = logging.getLogger("robox.wire")
         wire.addHandler(handler)
         wire.setLevel(logging.DEBUG if verbose > 1 else logging.INFO)
 
