@@ -18,7 +18,7 @@ from robox.formats.sdcard import default_id, make_id
 from robox.gcode import JobFile, Options, job_file
 from robox.gcode.files import inspect
 from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
-from robox.host.client import EEPROMS, CatchUpPoints, catch_up_lines
+from robox.host.client import DEFAULT_TIMEOUT_MS, EEPROMS, CatchUpPoints, catch_up_lines
 from robox.host.devices import list_printers, open_printer
 from robox.host.transport import Disconnected
 from robox.offline.eeprom import parse_assignments
@@ -30,12 +30,7 @@ POLL_S = 0.5
 
 def device(ctx: click.Context):
     options = ctx.obj or {}
-    return open_printer(options.get("device"), options.get("timeout", 10.0))
-
-
-def job_id_for(path: Path, sha1: str) -> str:
-    """A job's default id: see `formats.sdcard.default_id`."""
-    return default_id(path.stem, sha1)
+    return open_printer(options.get("device"), options.get("timeout", DEFAULT_TIMEOUT_MS / 1000))
 
 
 @click.command("printers")
@@ -77,11 +72,17 @@ def status_cmd(ctx, as_json: bool) -> None:
     click.echo(f"errors: {', '.join(errors) or 'none'}")
 
 
+def job_state(status) -> str | None:
+    """What the job is doing, in words (None with no job)."""
+    if status.job is None:
+        return None
+    return "printing" if status.pause == "running" else status.pause
+
+
 def describe_job(status) -> str:
     if status.job is None:
         return "job: none" + (" (busy)" if status.busy else "")
-    state = "printing" if status.pause == "running" else status.pause
-    return f"job: {status.job} (line {status.line}, {state})"
+    return f"job: {status.job} (line {status.line}, {job_state(status)})"
 
 
 #: A heater's mode digit in the status report: which of its targets it heats to.
@@ -173,7 +174,7 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
 def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
             wait: bool, quiet: bool) -> dict:
     """Send the job file (a chunk at a time) and, with `wait`, follow its print."""
-    name = job_id_for(Path(file), job.sha1) if file_id is None else file_id
+    name = default_id(Path(file).stem, job.sha1) if file_id is None else file_id
     if len(name.encode("ascii", "replace")) > 16:
         raise UsageError(f"job id {name!r} is longer than 16 characters")
     make_id(name)  # refuses an empty or non-ASCII id
@@ -296,12 +297,6 @@ def run_job_cmd(ctx, file_id: str | None, as_json: bool) -> None:
 PAUSED = {"pausing", "paused", "selfie pause"}
 
 
-def _job_state(status) -> dict:
-    return {"job": status.job, "line": status.line,
-            "state": None if status.job is None else
-            ("printing" if status.pause == "running" else status.pause)}
-
-
 def _pause_or_resume(ctx, as_json: bool, pause: bool) -> None:
     """Pause (or resume) the job unless it already is; say which happened."""
     with device(ctx) as printer:
@@ -314,7 +309,8 @@ def _pause_or_resume(ctx, as_json: bool, pause: bool) -> None:
             (printer.pause if pause else printer.resume)()
         after = printer.status()
     if as_json:
-        emit_json({**_job_state(after), "was_paused": was_paused})
+        emit_json({"job": after.job, "line": after.line, "state": job_state(after),
+                   "was_paused": was_paused})
         return
     job, line = after.job, after.line
     if pause:
