@@ -44,9 +44,11 @@ def default_state_dir() -> Path:
 def create_state(directory: Path) -> None:
     """Fill a state directory with a new printer (files already there are kept)."""
     directory.mkdir(parents=True, exist_ok=True)
-    # a process killed while it wrote one of these left its temporary file behind
-    for name in ("sdcard.img", "flash.bin", *CHIP_FILES.values()):
-        for stale in directory.glob(f".{name}.*.tmp"):
+    # a process killed while it wrote one of these left its temporary file behind; a new
+    # card is built in a temporary file that is itself replaced, so temporaries nest
+    names = ("sdcard.img", "flash.bin", *CHIP_FILES.values())
+    for stale in directory.glob(".*.tmp"):
+        if stale.name.lstrip(".").startswith(tuple(f"{name}." for name in names)):
             stale.unlink(missing_ok=True)
     card = directory / "sdcard.img"
     if not card.exists():

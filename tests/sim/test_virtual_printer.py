@@ -209,8 +209,14 @@ def test_a_new_start_removes_the_temporary_file_of_a_killed_one(tmp_path):
     state.mkdir()
     stale = state / ".sdcard.img.k1ll3d.tmp"
     stale.write_bytes(bytes(4096))
+    # the new card's own temporary file, replaced while it was built
+    nested = state / "..sdcard.img.5nwflh5f.tmp.6c_8s3v5.tmp"
+    nested.write_bytes(bytes(4096))
     other = state / "notes.txt"
     other.write_text("mine")
+    kept = state / ".mine.tmp"
+    kept.write_text("mine")
     create_state(state)
-    assert not stale.exists() and other.read_text() == "mine"
+    assert not stale.exists() and not nested.exists()
+    assert other.read_text() == "mine" and kept.read_text() == "mine"
     assert (state / "sdcard.img").stat().st_size == 64 * 1024 * 1024
