@@ -12,7 +12,7 @@ same file (`for line in f: line.split()`) timed in the same run:
    in-memory USB link and printed to the end (lines/s, upload MB/s, simulated
    time over wall time);
 2. the whole path a user runs: PrusaSlicer's file through
-   `robox-cli --device sim:DIR send-job FILE --wait` in its own process
+   `robox-cli --device sim-once:DIR send-job FILE --wait` in its own process
    (translated, uploaded over the protocol, printed to the end, the state
    saved): lines/s of the slicer's file, the ratio to the trivial loop, peak
    resident memory.
@@ -168,13 +168,13 @@ def whole_path(path: Path) -> None:
     plain = plain_loop_rate(path)
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
-        out, peak = robox_cli("--device", f"sim:{tmp}/printer", "send-job", str(path),
+        out, peak = robox_cli("--device", f"sim-once:{tmp}/printer", "send-job", str(path),
                               "--wait", "--json")
         wall = time.perf_counter() - start
     summary = json.loads(out)
     rate = lines / wall
     print(f"PrusaSlicer G-code {path.name}: {path.stat().st_size / 1e6:.2f} MB, {lines} "
-          "lines, through robox-cli --device sim:DIR send-job --wait")
+          "lines, through robox-cli --device sim-once:DIR send-job --wait")
     print(f"  whole path: {wall:.2f} s wall, {rate:,.0f} lines/s; trivial loop "
           f"{plain:,.0f} lines/s; ratio {rate / plain:.4f}")
     print(f"  simulated print time {summary['simulated_print_time_s'] / 3600:.2f} h; "

@@ -7,7 +7,7 @@ no volumetric E; cached in bench/.cache/), then times, in one run: a plain
 line-by-line read of the file (`for line in f: line.split()`) and
 `roboxise_file` writing the Robox job. Prints lines/s, MB/s and the ratio.
 With --memory, also the peak resident memory of `robox-cli roboxise` and of
-`robox-cli --device sim:DIR send-job` (upload only) on that file and on a
+`robox-cli --device sim-once:DIR send-job` (upload only) on that file and on a
 file about 50 MB long (the same layers over and over), each in its own process.
 Asserts nothing.
 """
@@ -59,7 +59,7 @@ def memory(path: Path) -> None:
         for name in (path, big):
             size = name.stat().st_size / 1e6
             _, roboxise = robox_cli("roboxise", str(name), "-o", f"{tmp}/out.robox")
-            _, send = robox_cli("--device", f"sim:{tmp}/printer", "send-job", str(name))
+            _, send = robox_cli("--device", f"sim-once:{tmp}/printer", "send-job", str(name))
             print(f"  peak RSS on {size:.1f} MB: roboxise {roboxise:.0f} MB, "
                   f"send-job {send:.0f} MB")
 

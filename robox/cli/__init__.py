@@ -20,8 +20,9 @@ from robox.cli.sim import sim
 @click.version_option(__version__, prog_name="robox-cli")
 @click.option("--device", envvar="ROBOX_DEVICE", metavar="DEVICE",
               help="usb (the one attached Robox), usb:ID (unique-ID prefix), serial:PATH, "
-                   "sim (the built-in virtual printer) or sim:DIR. Default: $ROBOX_DEVICE, "
-                   "else usb.")
+                   "sim[:DIR] (the virtual printer, served in the background), sim-once[:DIR] "
+                   "(the virtual printer in this process, for one command). Default: "
+                   "$ROBOX_DEVICE, else usb.")
 @click.option("--timeout", type=click.FloatRange(0.1, 3600.0), default=10.0,
               envvar="ROBOX_TIMEOUT", show_default=True, metavar="SECONDS",
               help="How long the printer may take to begin a reply. Default: $ROBOX_TIMEOUT, "

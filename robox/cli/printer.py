@@ -19,7 +19,7 @@ from robox.gcode import JobFile, Options, job_file
 from robox.gcode.files import inspect
 from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
 from robox.host.client import DEFAULT_TIMEOUT_MS, EEPROMS, CatchUpPoints, catch_up_lines
-from robox.host.devices import list_printers, open_printer
+from robox.host.devices import NoPrinter, list_printers, open_printer
 from robox.host.transport import Disconnected
 from robox.offline.eeprom import parse_assignments
 from robox.offline.firmware import read_input
@@ -36,16 +36,30 @@ def device(ctx: click.Context):
 @click.command("printers")
 @json_option
 def printers_cmd(as_json: bool) -> None:
-    """List the Robox printers attached over USB."""
-    found = [asdict(p) for p in list_printers()]
+    """List the Robox printers attached over USB and the virtual printers being served."""
+    from robox.sim.served import list_served
+
+    usb_problem = None
+    try:
+        found = [{"kind": "usb", "device": f"usb:{p.unique_id}", **asdict(p)}
+                 for p in list_printers()]
+    except NoPrinter as exc:
+        found, usb_problem = [], str(exc)
+    virtual = [{"kind": "sim", "device": f"sim:{v['state']}", **v} for v in list_served()]
+    if usb_problem and not virtual:
+        raise NoPrinter(usb_problem)
+    if usb_problem:
+        click.echo(f"robox-cli: USB not searched: {usb_problem}", err=True)
     if as_json:
-        emit_json(found)
+        emit_json(found + virtual)
         return
-    if not found:
+    if not found and not usb_problem:
         click.echo("no Robox attached over USB")
     for p in found:
         click.echo(f"{p['unique_id']}  firmware {p['revision']}  (bus {p['bus']}, "
                    f"address {p['address']})")
+    for v in virtual:
+        click.echo(f"{v['device']}  virtual printer served on {v['pty']} by PID {v['pid']}")
 
 
 @click.command("status")
@@ -160,15 +174,23 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
                    f"clear, `robox-cli run-job {summary['id']}` prints it from the start")
         return
     if wait:
-        took = summary.get("simulated_print_time_s", summary["print_time_s"])
-        click.echo(f"printed in {took / 60:.1f} min"
-                   + (" (simulated)" if "simulated_print_time_s" in summary else ""))
+        if "simulated_print_time_s" in summary:
+            click.echo(f"printed in {_minutes(summary['simulated_print_time_s'])} (simulated)")
+        elif getattr(printer, "served", None):
+            click.echo(f"printed in {_minutes(summary['print_time_s'])} of wall time (the "
+                       "virtual printer's clock runs ahead of the wall's)")
+        else:
+            click.echo(f"printed in {_minutes(summary['print_time_s'])}")
         for reel, used in summary["filament_used_mm"].items():
             click.echo(f"filament used from {reel}: {used / 1000:.2f} m")
         if summary["catch_up_resumes"]:
             click.echo(f"the print caught up with the upload {summary['catch_up_resumes']} "
                        "time(s) and was resumed")
         click.echo(f"errors: {', '.join(summary['errors']) or 'none'}")
+
+
+def _minutes(seconds: float) -> str:
+    return f"{seconds / 60:.1f} min" if seconds >= 60 else f"{seconds:.1f} s"
 
 
 def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,

@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
+import os
+import time
 from pathlib import Path
 
 import click
 
+from robox.cli.common import emit_json, json_option
 from robox.errors import UsageError
 from robox.sim.printer import default_state_dir
+
+STATE_OPTION = click.option("--state", "state_dir", type=click.Path(file_okay=False),
+                            help="State directory (default: the per-user virtual printer).")
+
+
+def _directory(state_dir: str | None) -> Path:
+    return Path(os.path.abspath(state_dir)) if state_dir else default_state_dir()
 
 
 @click.group()
@@ -16,16 +26,20 @@ def sim() -> None:
 
 
 @sim.command("serve")
-@click.option("--state", "state_dir", type=click.Path(file_okay=False),
-              help="State directory (default: the per-user virtual printer).")
+@STATE_OPTION
 @click.option("--realtime", is_flag=True, help="Pace simulated time to the wall clock.")
 @click.option("--speed", type=float, help="Pace simulated time at FACTOR times the wall clock.")
-def serve_cmd(state_dir: str | None, realtime: bool, speed: float | None) -> None:
+@click.option("--detach", is_flag=True,
+              help="Serve in the background; print the pseudo-terminal's path and return.")
+def serve_cmd(state_dir: str | None, realtime: bool, speed: float | None,
+              detach: bool) -> None:
     """Serve the virtual printer on a pseudo-terminal; its path is the first line printed.
 
     Without --realtime or --speed the clock runs as fast as the work needs. Stops on
-    SIGINT or SIGTERM, leaving the state files consistent.
+    SIGINT or SIGTERM (`robox-cli sim stop`), leaving the state files consistent. One
+    state directory is served by one process at a time.
     """
+    from robox.sim import served
     from robox.sim.serve import serve_forever
 
     if realtime and speed is not None:
@@ -33,6 +47,68 @@ def serve_cmd(state_dir: str | None, realtime: bool, speed: float | None) -> Non
     if speed is not None and speed <= 0:
         raise UsageError("--speed must be positive")
     pace = 1.0 if realtime else speed
-    directory = Path(state_dir) if state_dir else default_state_dir()
+    directory = _directory(state_dir)
+    if detach:
+        record = served.start(directory, pace)
+        click.echo(record["pty"])
+        click.echo(f"serving the virtual printer for {directory} in the background "
+                   f"(PID {record['pid']}); `robox-cli sim stop` switches it off", err=True)
+        return
     serve_forever(directory, pace, lambda path: click.echo(path),
                   lambda message: click.echo(message, err=True))
+
+
+@sim.command("status")
+@STATE_OPTION
+@json_option
+def status_cmd(state_dir: str | None, as_json: bool) -> None:
+    """Say whether the virtual printer is served, by which process, on which port.
+
+    Exits 0 when it is served, 3 when it is not.
+    """
+    from robox.sim import served
+
+    directory = _directory(state_dir)
+    record = served.served_record(directory)
+    data = {"state": str(directory), "served": record is not None}
+    if record is not None:
+        data.update(pid=record.get("pid"), pty=record.get("pty"),
+                    started=record.get("started"), speed=record.get("speed"))
+    if as_json:
+        emit_json(data)
+    elif record is None:
+        click.echo(f"not served: {directory}")
+    else:
+        since = record.get("started")
+        up = f", up {_duration(time.time() - since)}" if isinstance(since, (int, float)) else ""
+        pace = record.get("speed")
+        clock = "as fast as the work needs" if pace is None else f"at {pace:g}x real time"
+        click.echo(f"served on {record.get('pty') or '(starting)'} by PID {record.get('pid')}"
+                   f"{up}; clock {clock}; state {directory}")
+    if record is None:
+        raise SystemExit(3)
+
+
+@sim.command("stop")
+@STATE_OPTION
+@json_option
+def stop_cmd(state_dir: str | None, as_json: bool) -> None:
+    """Switch off the served virtual printer; it saves its state first."""
+    from robox.sim import served
+
+    directory = _directory(state_dir)
+    record = served.stop(directory)
+    if as_json:
+        emit_json({"state": str(directory), "stopped": record is not None,
+                   "pid": record.get("pid") if record else None})
+    elif record is None:
+        click.echo(f"not served: {directory}")
+    else:
+        click.echo(f"stopped the virtual printer (PID {record.get('pid')}); state {directory}")
+
+
+def _duration(seconds: float) -> str:
+    seconds = max(0, int(seconds))
+    hours, rest = divmod(seconds, 3600)
+    minutes, seconds = divmod(rest, 60)
+    return f"{hours}h{minutes:02d}m" if hours else f"{minutes}m{seconds:02d}s"

@@ -1,8 +1,14 @@
-"""Choosing a printer: `usb`, `usb:ID`, `serial:PATH`, `sim` and `sim:DIR`.
+"""Choosing a printer: `usb`, `usb:ID`, `serial:PATH`, `sim[:DIR]` and `sim-once[:DIR]`.
 
-`sim` runs the built-in virtual printer in this process for the duration of
-the command, reached through its pyusb backend (the same code path as a real
-printer), and lets it finish its background work before the command exits.
+`sim` is the virtual printer that stays on: the one served for that state
+directory (`robox-cli sim serve`), started in the background when none is, and
+reached through its pseudo-terminal as a real printer's /dev/ttyACM* is. Jobs,
+uploads and resumes carry on across commands, as on a real printer.
+
+`sim-once` runs the virtual printer in this process for the duration of the
+command (tests and benchmarks), reached through its pyusb backend (the same code
+path as a real printer); it lets the printer finish its background work and
+switches it off before the command exits.
 """
 
 from __future__ import annotations
@@ -10,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +34,8 @@ from robox.host.transport import (
 )
 
 ENVIRONMENT = "ROBOX_DEVICE"
-SIM_STEP_S = 5.0  # simulated seconds a sim device runs while the host waits
+SIM_STEP_S = 5.0  # simulated seconds a sim-once printer runs while the host waits
+SERVED_POLL_S = 0.02  # a served virtual printer's clock outruns the wall's: poll it often
 
 
 class NoPrinter(RoboxError):
@@ -104,10 +112,9 @@ def _select_usb(prefix: str | None, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Pri
 def _sim(directory: Path, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Iterator[Printer]:
     import usb.core
 
-    from robox.sim.printer import VirtualPrinter, create_state
+    from robox.sim.printer import VirtualPrinter
     from robox.sim.usb_backend import VirtualRoboxBackend
 
-    create_state(directory)
     virtual = VirtualPrinter(directory)
     try:
         virtual.settle()  # power-up: the EEPROMs load, as on a printer switched on a moment ago
@@ -128,6 +135,24 @@ def _sim(directory: Path, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Iterator[Prin
         virtual.close()
 
 
+def _served(directory: Path, timeout_ms: int, announce=None) -> Printer:
+    """The printer served for `directory` (started in the background if need be)."""
+    from robox.sim import served
+
+    record = served.ensure(directory, announce)
+    printer = Printer(SerialTransport(record["pty"]), timeout_ms,
+                      idle=lambda seconds: time.sleep(min(seconds, SERVED_POLL_S)))
+    printer.served = record
+    return printer
+
+
+def _started(record: dict) -> None:
+    import sys
+
+    print(f"robox-cli: started the virtual printer in the background (PID {record['pid']}, "
+          f"{record['pty']}); `robox-cli sim stop` switches it off", file=sys.stderr)
+
+
 @contextlib.contextmanager
 def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000
                  ) -> Iterator[Printer]:
@@ -136,21 +161,24 @@ def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000
     timeout_ms = max(1, round(timeout_s * 1000))
     spec = spec or os.environ.get(ENVIRONMENT) or "usb"
     kind, _, rest = spec.partition(":")
-    if kind == "sim":
+    if kind in ("sim", "sim-once"):
         from robox.sim.printer import default_state_dir
 
-        with _sim(Path(rest) if rest else default_state_dir(), timeout_ms) as printer:
-            yield printer
-        return
-    if kind == "usb":
+        directory = Path(os.path.abspath(rest)) if rest else default_state_dir()
+        if kind == "sim-once":
+            with _sim(directory, timeout_ms) as printer:
+                yield printer
+            return
+        printer = _served(directory, timeout_ms, _started)
+    elif kind == "usb":
         printer = _select_usb(rest or None, timeout_ms)
     elif kind == "serial":
         if not rest:
             raise UsageError("serial needs a path: --device serial:/dev/ttyACM0")
         printer = Printer(SerialTransport(rest), timeout_ms)
     else:
-        raise UsageError(f"unknown device {spec!r}: use usb, usb:ID, serial:PATH, sim or "
-                         "sim:DIR")
+        raise UsageError(f"unknown device {spec!r}: use usb, usb:ID, serial:PATH, sim, "
+                         "sim:DIR, sim-once or sim-once:DIR")
     try:
         yield printer
     finally:

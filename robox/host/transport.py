@@ -11,6 +11,7 @@ import errno
 import time
 
 from robox.errors import RoboxError
+from robox.locks import lock_port
 
 VENDOR_ID = 0x16D0
 PRODUCT_ID = 0x081B
@@ -116,6 +117,11 @@ class SerialTransport:
             if isinstance(exc.__context__, PermissionError) or "ermission" in str(exc):
                 raise PermissionDenied(f"{path}: {permission_hint()}") from None
             raise TransportError(f"{path}: cannot open: {exc.strerror or exc}") from None
+        try:
+            lock_port(self.port.fileno(), path)  # one host at a time on a port
+        except BaseException:
+            self.port.close()
+            raise
 
     def write(self, data: bytes, timeout_ms: int = 5000) -> None:
         try:

@@ -26,6 +26,7 @@ from robox.hardware.flash import Flash
 from robox.hardware.sdcard import SdCard
 from robox.hardware.storage import FileStorage, MemoryStorage
 from robox.hardware.usb import PACKET_SIZE
+from robox.locks import DirectoryLock
 from robox.offline import sdcard as card_images
 from robox.sim import images
 
@@ -90,12 +91,24 @@ class VirtualPrinter:
     `media` when given)."""
 
     def __init__(self, state_dir: str | os.PathLike | None = None, card_blocks: int = 16384,
-                 media: Media | None = None):
+                 media: Media | None = None, role: str = "command"):
         self.state_dir = Path(state_dir) if state_dir is not None else None
         self._files = []
+        self.lock = None
+        if self.state_dir is not None:
+            self.state_dir.mkdir(parents=True, exist_ok=True)
+            # held until close(): no other process opens these files meanwhile
+            self.lock = DirectoryLock(self.state_dir, role)
+        try:
+            self._power_up(card_blocks, media)
+        except BaseException:
+            self.close()
+            raise
+
+    def _power_up(self, card_blocks: int, media: Media | None) -> None:
         chips: dict[EepromIndex, EepromChip | None] = {}
         if media is not None:
-            if state_dir is not None:
+            if self.state_dir is not None:
                 raise ValueError("media are for an in-memory printer")
             card = SdCard(MemoryStorage(media.card))
             flash = Flash(MemoryStorage(media.flash))
@@ -221,11 +234,15 @@ class VirtualPrinter:
                 self._saved_writes[index] = chip.writes
 
     def close(self) -> None:
-        self.save_chips()
+        if getattr(self, "hw", None) is not None:
+            self.save_chips()
         for storage in self._files:
             storage.flush()
             storage.close()
         self._files = []
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
 
     def __enter__(self) -> VirtualPrinter:
         return self

@@ -28,6 +28,7 @@ import tty
 from robox.errors import RoboxError
 from robox.firmware.command import HOST_CONNECTED_S
 from robox.firmware.main import PASS_S
+from robox.sim import served
 from robox.sim.printer import VirtualPrinter
 
 READ_SIZE = 4096
@@ -158,11 +159,18 @@ class ModelFault(RoboxError):
 
 def serve_forever(state_dir, speed: float | None, announce, console=None) -> None:
     """Serve until SIGINT or SIGTERM, then leave every state file consistent."""
-    printer = VirtualPrinter(state_dir)
-    server = PtyServer(printer, speed, console)
+    state_dir = os.path.abspath(state_dir)
+    printer = VirtualPrinter(state_dir, role="serve")
+    try:
+        server = PtyServer(printer, speed, console)
+    except BaseException:
+        printer.close()
+        raise
     previous = {sig: signal.signal(sig, server.stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     faulted = False
     try:
+        printer.lock.update(pty=server.path, started=round(time.time(), 3), speed=speed)
+        served.add_note(printer.state_dir)
         announce(server.path)
         server.serve()
     except Exception as exc:  # a bug in the model: say so, keep what was committed
@@ -179,5 +187,6 @@ def serve_forever(state_dir, speed: float | None, announce, console=None) -> Non
             signal.signal(sig, handler)
         if not faulted:
             printer.settle()
-        printer.close()
+        served.remove_note(printer.state_dir)
         server.close()
+        printer.close()  # last: it releases the state directory's lock

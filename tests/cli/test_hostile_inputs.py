@@ -27,8 +27,8 @@ COMMANDS = {
     "sdcard put (file)": ["sdcard", "put", "{tmp}/card.img", "@"],
     "roboxise": ["roboxise", "@", "-o", "{tmp}/out.gcode"],
     "simulate": ["simulate", "@"],
-    "send-job": ["--device", "sim:{tmp}/state", "send-job", "@"],
-    "update-firmware": ["--device", "sim:{tmp}/state", "update-firmware", "@"],
+    "send-job": ["--device", "sim-once:{tmp}/state", "send-job", "@"],
+    "update-firmware": ["--device", "sim-once:{tmp}/state", "update-firmware", "@"],
 }
 
 
@@ -80,8 +80,8 @@ def test_an_input_that_is_not_a_file_of_its_kind_is_refused_at_once(tmp_path, in
 @pytest.mark.parametrize("args", [
     ["sdcard", "put", "{tmp}/card.img", "{tmp}/job.gcode", "--id", ""],
     ["sdcard", "get", "{tmp}/card.img", ""],
-    ["--device", "sim:{tmp}/state", "send-job", "{tmp}/job.gcode", "--id", ""],
-    ["--device", "sim:{tmp}/state", "run-job", ""],
+    ["--device", "sim-once:{tmp}/state", "send-job", "{tmp}/job.gcode", "--id", ""],
+    ["--device", "sim-once:{tmp}/state", "run-job", ""],
 ])
 def test_an_empty_id_is_refused(tmp_path, inputs, args):
     """No command can name a file whose id is empty (0x94 with no id means the last

@@ -111,9 +111,9 @@ def test_every_command_that_reports_answers_json(tmp_path, served):
 # --------------------------------------------------------------- --yes
 def test_destroying_commands_ask_first_and_refuse_away_from_a_terminal(tmp_path):
     state = tmp_path / "printer"
-    assert run("--device", f"sim:{state}", "status").exit_code == 0
+    assert run("--device", f"sim-once:{state}", "status").exit_code == 0
     head = (state / "head.eeprom").read_bytes()
-    one_line_error(run("--device", f"sim:{state}", "format-eeprom", "head"), 2, "--yes")
+    one_line_error(run("--device", f"sim-once:{state}", "format-eeprom", "head"), 2, "--yes")
     assert (state / "head.eeprom").read_bytes() == head
     image = tmp_path / "card.img"
     assert run("sdcard", "format", image, "--size", "1MiB").exit_code == 0  # new: no question
@@ -147,13 +147,13 @@ def test_a_no_at_the_question_changes_nothing(tmp_path, monkeypatch):
 # ------------------------------------------------------- -v and --timeout
 def test_verbose_logs_the_wire(tmp_path):
     state = tmp_path / "printer"
-    one = run("-v", "--device", f"sim:{state}", "status")
+    one = run("-v", "--device", f"sim-once:{state}", "status")
     assert "robox-cli: sent 0xb0 (1 bytes), got 0xe1 (222 bytes)" in one.stderr
     assert "  > b0" not in one.stderr
-    two = run("-vv", "--device", f"sim:{state}", "status")
+    two = run("-vv", "--device", f"sim-once:{state}", "status")
     assert "robox-cli:   > b0\n" in two.stderr
     assert "robox-cli:   < e1 " in two.stderr
-    assert run("--device", f"sim:{state}", "status").stderr == ""
+    assert run("--device", f"sim-once:{state}", "status").stderr == ""
 
 
 def test_timeout_bounds_the_wait_for_a_printer_that_does_not_answer():
@@ -216,7 +216,7 @@ def test_send_job_and_sdcard_put_name_a_file_alike(tmp_path):
     image = tmp_path / "card.img"
     assert run("sdcard", "format", image, "--size", "1MiB").exit_code == 0
     put = json.loads(run("sdcard", "put", image, job, "--job", "--json").output)
-    sent = json.loads(run("--device", f"sim:{tmp_path / 'printer'}", "send-job", job, "--raw",
+    sent = json.loads(run("--device", f"sim-once:{tmp_path / 'printer'}", "send-job", job, "--raw",
                           "--json").output)
     assert put["id"] == sent["id"]
     assert put["id"].startswith("bracket_")

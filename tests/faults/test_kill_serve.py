@@ -42,7 +42,7 @@ def test_kill_9_at_moments_through_a_served_upload_leaves_a_state_that_reopens(t
     expected = job.read_bytes().replace(b"\n", b"\r")
     first = tmp_path / "first.gcode"
     first.write_bytes(b"G28 X Y\n" * 200)
-    assert run("--device", f"sim:{pristine}", "send-job", first, "--raw", "--id", "first",
+    assert run("--device", f"sim-once:{pristine}", "send-job", first, "--raw", "--id", "first",
                "--wait").exit_code == 0
     with VirtualPrinter(pristine) as virtual:
         stored_first = virtual.firmware.file_system.read_committed(make_id("first"))
@@ -89,7 +89,7 @@ def test_kill_9_at_moments_through_a_served_upload_leaves_a_state_that_reopens(t
             part = fw.file_system.read_committed(make_id("part"))
             if part is not None and part != expected:
                 problems.append(f"{label}: 'part' is stored but not whole")
-        result = run("--device", f"sim:{state}", "send-job", job, "--raw", "--id", "part",
+        result = run("--device", f"sim-once:{state}", "send-job", job, "--raw", "--id", "part",
                      "--resume")
         if result.exit_code != 0:
             problems.append(f"{label}: send-job --resume: {result.output.strip()}")
@@ -114,7 +114,7 @@ def test_kill_9_while_sim_serve_creates_a_new_state_directory(tmp_path):
         time.sleep(moment)
         serve.send_signal(signal.SIGKILL)
         serve.wait(timeout=30)
-        result = run("--device", f"sim:{state}", "status")
+        result = run("--device", f"sim-once:{state}", "status")
         if result.exit_code != 0:
             problems.append(f"killed at {moment} s: status: {result.output.strip()}")
         leftovers = [p.name for p in state.iterdir()]

@@ -97,7 +97,7 @@ def test_send_job_resume_after_a_power_cut_sends_the_job_again(tmp_path):
         virtual.supply(PowerPlan(cut_at=12, landing=Landing("mix", 3)))
         with pytest.raises(PowerCut):
             campaign.scenario(virtual)
-    args = ["--device", f"sim:{state}", "send-job", str(job), "--raw", "--id", "part",
+    args = ["--device", f"sim-once:{state}", "send-job", str(job), "--raw", "--id", "part",
             "--resume"]
     result = CliRunner().invoke(cli, args)
     assert result.exit_code == 0, result.output

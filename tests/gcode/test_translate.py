@@ -249,7 +249,7 @@ def test_a_slic3r_print_on_the_virtual_printer(tmp_path, extra):
 
     hw.Machine.step = watched
     try:
-        result = cli_run("--device", f"sim:{state}", "send-job", str(gcode), "--wait",
+        result = cli_run("--device", f"sim-once:{state}", "send-job", str(gcode), "--wait",
                          "--json")
     finally:
         hw.Machine.step = step

@@ -34,7 +34,7 @@ def state(tmp_path):
 
 
 def sim(state, *args):
-    return run("--device", f"sim:{state}", *args)
+    return run("--device", f"sim-once:{state}", *args)
 
 
 def test_send_job_wait_prints_the_example_to_the_end(state):

@@ -28,7 +28,7 @@ def test_a_new_state_directory_is_a_printer_the_offline_tools_can_read(tmp_path)
         assert printer.firmware.revision == "r776sim"
         assert printer.firmware.errors.bits == 0
     names = sorted(p.name for p in state.iterdir())
-    assert names == ["flash.bin", "head.eeprom", "reel0.eeprom", "sdcard.img"]
+    assert names == ["flash.bin", "head.eeprom", "printer.lock", "reel0.eeprom", "sdcard.img"]
     assert run_cli("sdcard", "fsck", str(state / "sdcard.img")).exit_code == 0
     reel = json.loads(run_cli("eeprom", "show", str(state / "reel0.eeprom"), "--json").output)
     assert reel["fields"]["filament_diameter"]["value"] == 1.75
