@@ -156,7 +156,7 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
     with device(ctx) as printer:
         options = None
         if not raw and detected.from_slicer:
-            options = _printer_options(printer, filament_diameter, nozzle, macros)
+            options = printer_options(printer, filament_diameter, nozzle, macros)
         with job_file(file, options) as job:
             if job.translation is not None and not as_json:
                 t = job.translation
@@ -238,7 +238,7 @@ def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
     return summary
 
 
-def _printer_options(printer, filament_diameter: float | None, nozzle: int | None,
+def printer_options(printer, filament_diameter: float | None, nozzle: int | None,
                      macros: Path | None) -> Options:
     """Translation options from the printer's head and reels, and the user's."""
     eeproms = printer.status().eeproms

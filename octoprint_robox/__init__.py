@@ -1,0 +1,145 @@
+"""OctoPrint plugin for the CEL Robox (`pip install robox[octoprint]`).
+
+Two ways OctoPrint reaches a Robox, both offered by this plugin:
+
+- **The Robox ports** (`robox:usb`, `robox:sim`, `robox:sim:DIR`,
+  `robox:serial:PATH`, in OctoPrint's port list): OctoPrint talks to
+  `octoprint_robox.link.RoboxLink`, which drives the printer in Robox mode through
+  robox's own client. Temperatures come under their names (tool0 = nozzle 0,
+  tool1 = nozzle 1, bed, chamber = ambient), uploads to the printer's card print
+  while they upload, jobs on the card are started, followed, paused, resumed and
+  cancelled, and the printer's errors appear as OctoPrint notifications. A printer
+  left in text mode by another host is reset into Robox mode on connecting.
+- **The plain serial port** (/dev/ttyACM*, or a virtual printer's pty) in
+  Pronterface mode: the plugin renames the Robox's M105 fields, whose `S:` is
+  nozzle 0 and `T:` nozzle 1, so OctoPrint does not show nozzle 1 as tool 0.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+
+PREFIX = "robox:"
+PLAIN_NAMES = {"S": "T0", "T0": "T1", "T": "T1", "A": "C"}
+
+
+class RoboxPlugin:
+    """The plugin's hooks (it needs no other part of OctoPrint's plugin API)."""
+
+    def __init__(self):
+        self._links = {}
+        self._log = logging.getLogger("octoprint.plugins.robox")
+
+    # ------------------------------------------------------------------ ports
+    def port_names(self, candidates, *args, **kwargs):
+        from robox.sim.served import list_served
+
+        names = [f"{PREFIX}usb", f"{PREFIX}sim"]
+        names += [f"{PREFIX}sim:{served['state']}" for served in list_served()]
+        return [n for n in names if n not in candidates]
+
+    def serial_factory(self, comm_instance, port, baudrate, read_timeout, *args, **kwargs):
+        if not port or not port.startswith(PREFIX):
+            return None
+        from octoprint_robox.link import RoboxLink
+        from robox.host.devices import open_printer
+
+        spec = port[len(PREFIX):]
+        stack = contextlib.ExitStack()
+        printer = stack.enter_context(open_printer(spec))
+        _into_robox_mode(printer)
+        link = RoboxLink(printer, float(read_timeout), closer=stack.close)
+        self._links[port] = link
+        self._current = link
+        return link
+
+    # ------------------------------------------------------ plain serial names
+    def temperatures(self, comm_instance, parsed, *args, **kwargs):
+        """Pronterface mode's M105 (`S:` nozzle 0, `T:` nozzle 1, `B:` bed, `A:` ambient)
+        under OctoPrint's names. OctoPrint has already read `T:` as the current tool."""
+        if "S" not in parsed or "A" not in parsed:
+            return parsed  # not a Robox's report
+        renamed = {}
+        for key, value in parsed.items():
+            if key.startswith("T") and key not in ("T", "T0", "T1"):
+                continue
+            renamed[PLAIN_NAMES.get(key, key)] = value
+        return renamed
+
+    # ------------------------------------------------------------ card upload
+    def card_upload(self, printer, filename, path, started, succeeded, failed,
+                    *args, **kwargs):
+        link = getattr(self, "_current", None)
+        if link is None or link._closed:
+            return None  # not a Robox port: OctoPrint's own upload
+        import hashlib
+
+        from robox.formats.sdcard import default_id
+        from robox.gcode import job_file
+        from robox.gcode.files import inspect
+
+        detected = inspect(path)
+        digest = hashlib.sha1()
+        with open(path, "rb") as original:
+            for block in iter(lambda: original.read(1 << 20), b""):
+                digest.update(block)
+        remote = default_id(filename.rsplit("/", 1)[-1].rsplit(".", 1)[0], digest.hexdigest())
+
+        def run() -> None:
+            begun = time.monotonic()
+            started(filename, remote)
+            try:
+                options = None
+                if detected.from_slicer:
+                    from robox.cli.printer import printer_options
+
+                    options = printer_options(link.printer, None, None, None)
+                with job_file(path, options) as job, open(job.path, "rb") as source:
+                    link.upload(source, remote, job.lines)
+            except Exception:
+                self._log.exception("upload of %s to the Robox failed", filename)
+                failed(filename, remote, time.monotonic() - begun)
+                return
+            succeeded(filename, remote, time.monotonic() - begun)
+
+        threading.Thread(target=run, name="robox-upload", daemon=True).start()
+        return remote
+
+
+def _into_robox_mode(printer) -> None:
+    """A printer a text host left mid-line takes frames as more of that line and
+    answers in text: ending the line (a line end) and letting its answers drain
+    brings it back to frames."""
+    from robox.host.client import ProtocolError
+    from robox.host.transport import NoReply
+
+    try:
+        printer.status()
+        return
+    except ProtocolError:
+        pass
+    printer.transport.write(b"\n")
+    with contextlib.suppress(NoReply):
+        while printer.transport.read(64, 300):
+            pass
+    printer.status()
+
+
+__plugin_name__ = "Robox"
+__plugin_pythoncompat__ = ">=3.11,<4"
+__plugin_description__ = ("CEL Robox printers: the right temperatures, uploads that print "
+                          "while they upload, jobs on the printer's card, its errors.")
+
+
+def __plugin_load__():
+    global __plugin_hooks__
+    plugin = RoboxPlugin()
+    __plugin_hooks__ = {
+        "octoprint.comm.transport.serial.additional_port_names": plugin.port_names,
+        "octoprint.comm.transport.serial.factory": plugin.serial_factory,
+        "octoprint.comm.protocol.temperatures.received": plugin.temperatures,
+        "octoprint.printer.sdcardupload": plugin.card_upload,
+    }

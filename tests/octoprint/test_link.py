@@ -1,0 +1,135 @@
+"""The serial port OctoPrint sees for a Robox (octoprint_robox.link.RoboxLink), driven line
+by line as OctoPrint drives it, against a served virtual printer through its pty."""
+
+import io
+import json
+import os
+import signal
+import time
+
+import pytest
+from click.testing import CliRunner
+
+from octoprint_robox import RoboxPlugin
+from octoprint_robox.link import RoboxLink
+from robox.cli import cli
+from robox.host.devices import open_printer
+from robox.locks import read_record
+from robox.offline import sdcard as card_images
+
+JOB = b"G28 X Y\r" + b"".join(b"G1 X%d Y%d F3000\r" % (10 + i % 50, 10 + (i * 7) % 50)
+                             for i in range(900))
+
+
+@pytest.fixture
+def link(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "runtime"))
+    state = tmp_path / "printer"
+    with open_printer(f"sim:{state}") as printer:
+        link = RoboxLink(printer, 0.2)
+        link.state = state
+        assert link.readline() == b"start\n"
+        yield link
+        link.close()
+    record = read_record(state)
+    if record:
+        os.kill(record["pid"], signal.SIGKILL)
+
+
+def say(link, line: str) -> list[str]:
+    """Write one line as OctoPrint does (line number, checksum); its answer up to `ok`."""
+    body = f"N7 {line}"
+    checksum = 0
+    for c in body.encode():
+        checksum ^= c
+    link.write(f"{body}*{checksum}\n".encode())
+    answer = []
+    while True:
+        text = link.readline().decode()
+        assert text, f"no ok for {line!r} (got {answer})"
+        answer.append(text.rstrip("\n"))
+        if text.startswith("ok"):
+            return answer
+
+
+def test_temperatures_under_octoprints_names_with_the_targets_heated_to(link):
+    assert say(link, "M105") == ["ok T0:20.0 /0.0 T1:0.0 /0.0 B:20.0 /0.0 C:20.0 /0.0"]
+    assert say(link, "M104 S200") == ["ok"]
+    assert say(link, "M140 S60") == ["ok"]
+    deadline = time.monotonic() + 10  # the printer runs executed lines a moment later
+    while " /60.0 C:" not in (answer := say(link, "M105")[-1]):
+        assert time.monotonic() < deadline, answer
+        time.sleep(0.05)
+    assert " /200.0 T1:" in answer and answer.startswith("ok T0:")
+    assert " B:" in answer and answer.split(" B:")[1].split()[1] == "/60.0"
+    status = link.printer.status()
+    assert status.temperatures["nozzle0"]["target"] == 200.0
+    say(link, "M104 S0")
+    say(link, "M140 S0")
+
+
+def test_firmware_and_card_as_octoprint_asks_for_them(link):
+    m115 = say(link, "M115")
+    assert m115[0].startswith(f"FIRMWARE_NAME:Robox {link.printer.revision()} UUID:")
+    assert "Cap:SDCARD:1" in m115
+    assert say(link, "M21") == ["SD card ok", "ok"]
+    files = link.printer.files()
+    listing = say(link, "M20")
+    assert listing[0] == "Begin file list" and listing[-2:] == ["End file list", "ok"]
+    assert [line.split()[0] for line in listing[1:-2]] == list(dict.fromkeys(files))
+    assert say(link, "M23 nothere") == ["open failed, File: nothere.", "ok"]
+
+
+def test_an_upload_prints_while_it_uploads_and_octoprint_pauses_resumes_cancels(link):
+    link.upload(io.BytesIO(JOB), "partA", 901)
+    status = link.printer.status()
+    assert status.job == "partA"  # printing began during the upload
+    progress = say(link, "M27")
+    assert progress[0].startswith("SD printing byte ") and progress[0].endswith("/901")
+    assert say(link, "M25") == ["ok"]
+    deadline = time.monotonic() + 30
+    while link.printer.status().pause != "paused":
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    assert say(link, "M24") == ["ok"]
+    assert link.printer.status().pause not in ("pausing", "paused")
+    # OctoPrint's cancel of a card print
+    for line in ("M25", "M27", "M26 S0"):
+        say(link, line)
+    deadline = time.monotonic() + 30
+    while link.printer.status().job is not None:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    assert say(link, "M27") == ["Not SD printing", "ok"]
+    assert any(line.startswith("partA 901") for line in say(link, "M20"))
+    assert say(link, "M23 partA") == ["File opened: partA Size: 901", "File selected", "ok"]
+    link.close()
+    state = link.state
+    done = CliRunner().invoke(cli, ["sim", "stop", "--state", str(state), "--json"])
+    assert json.loads(done.stdout)["stopped"] is True
+    assert card_images.get_file(state / "sdcard.img", "partA") == JOB
+
+
+def test_a_job_started_from_octoprint_says_done_when_it_ends(link):
+    short = b"G28 X Y\r" + b"G1 X20 Y20 F3000\r" * 3
+    link.printer.send_file(io.BytesIO(short), "short", run=False)
+    assert say(link, "M23 short")[-2:] == ["File selected", "ok"]
+    assert say(link, "M24") == ["ok"]
+    deadline = time.monotonic() + 60
+    heard = []
+    while "Done printing file" not in heard:
+        assert time.monotonic() < deadline, heard
+        heard += say(link, "M105")
+        line = link.readline().decode().strip()
+        if line:
+            heard.append(line)
+
+
+def test_the_plain_serial_report_gets_the_right_names():
+    # OctoPrint's own reading of "S:19 @0 T:0 @0 B:20 ^0 A:20 *0": T is taken as the
+    # current tool, S and A kept as they are
+    parsed = {"T0": (0.0, None), "S": (19.0, None), "B": (20.0, None), "A": (21.0, None)}
+    assert RoboxPlugin().temperatures(None, parsed) == {
+        "T1": (0.0, None), "T0": (19.0, None), "B": (20.0, None), "C": (21.0, None)}
+    marlin = {"T0": (200.0, 210.0), "B": (60.0, 60.0)}
+    assert RoboxPlugin().temperatures(None, marlin) == marlin
