@@ -51,7 +51,7 @@ class RoboxPlugin:
         stack = contextlib.ExitStack()
         printer = stack.enter_context(open_printer(spec))
         _into_robox_mode(printer)
-        link = RoboxLink(printer, float(read_timeout), closer=stack.close)
+        link = RoboxLink(printer, float(read_timeout), closer=stack.close, port=port)
         self._links[port] = link
         self._current = link
         return link
@@ -77,6 +77,7 @@ class RoboxPlugin:
             return None  # not a Robox port: OctoPrint's own upload
         import hashlib
 
+        from octoprint_robox.link import shown
         from robox.formats.sdcard import default_id
         from robox.gcode import job_file
         from robox.gcode.files import inspect
@@ -101,12 +102,12 @@ class RoboxPlugin:
                     link.upload(source, remote, job.lines)
             except Exception:
                 self._log.exception("upload of %s to the Robox failed", filename)
-                failed(filename, remote, time.monotonic() - begun)
+                failed(filename, shown(remote), time.monotonic() - begun)
                 return
-            succeeded(filename, remote, time.monotonic() - begun)
+            succeeded(filename, shown(remote), time.monotonic() - begun)
 
         threading.Thread(target=run, name="robox-upload", daemon=True).start()
-        return remote
+        return shown(remote)
 
 
 def _into_robox_mode(printer) -> None:

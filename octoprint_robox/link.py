@@ -40,6 +40,15 @@ from robox.formats.protocol import error_names
 LINE_NUMBER = re.compile(r"^N-?\d+\s*")
 CHECKSUM = re.compile(r"\*\d+\s*$")
 MODES = {"1": "target", "2": "first_layer_target"}
+SUFFIX = ".gco"  # OctoPrint prints only files with a G-code extension; card ids have none
+
+
+def shown(file_id: str) -> str:
+    return file_id + SUFFIX
+
+
+def card_id(name: str) -> str:
+    return name[: -len(SUFFIX)] if name.lower().endswith(SUFFIX) else name
 
 
 def _target(heater: dict) -> float:
@@ -59,8 +68,9 @@ class RoboxLink:
     """A serial-like object (readline, write, close, timeout) for OctoPrint."""
 
     def __init__(self, printer, read_timeout: float = 2.0,
-                 closer: Callable[[], None] | None = None):
+                 closer: Callable[[], None] | None = None, port: str = "robox"):
         self.printer = printer
+        self.port = port
         self.timeout = read_timeout
         self._closer = closer
         self._lock = threading.RLock()      # one exchange with the printer at a time
@@ -79,10 +89,6 @@ class RoboxLink:
         printer.transact = one_at_a_time  # an upload's chunks and OctoPrint's lines interleave
 
     # ------------------------------------------------------------ serial surface
-    @property
-    def port(self) -> str:
-        return "robox"
-
     def write(self, data: bytes) -> int:
         text = data.decode("ascii", "replace")
         for line in text.replace("\r", "\n").split("\n"):
@@ -150,16 +156,17 @@ class RoboxLink:
 
     def _M20(self, line: str) -> list[str]:
         names = list(dict.fromkeys(self.printer.files()))  # a repeated id is one file
-        return ["Begin file list", *(f"{n} {self._lines.get(n, 0)}" for n in names),
+        return ["Begin file list", *(f"{shown(n)} {self._lines.get(n, 0)}" for n in names),
                 "End file list", "ok"]
 
     def _M23(self, line: str) -> list[str]:
-        name = line.split(None, 1)[1].strip() if " " in line else ""
+        asked = line.split(None, 1)[1].strip() if " " in line else ""
+        name = card_id(asked)
         if name not in self.printer.files():
-            return [f"open failed, File: {name}.", "ok"]
+            return [f"open failed, File: {asked}.", "ok"]
         self._selected = name
-        return [f"File opened: {name} Size: {self._lines.get(name, 0)}", "File selected",
-                "ok"]
+        return [f"File opened: {shown(name)} Size: {self._lines.get(name, 0)}",
+                "File selected", "ok"]
 
     def _M24(self, line: str) -> list[str]:
         status = self.printer.status()

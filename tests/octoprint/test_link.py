@@ -76,7 +76,8 @@ def test_firmware_and_card_as_octoprint_asks_for_them(link):
     files = link.printer.files()
     listing = say(link, "M20")
     assert listing[0] == "Begin file list" and listing[-2:] == ["End file list", "ok"]
-    assert [line.split()[0] for line in listing[1:-2]] == list(dict.fromkeys(files))
+    assert [line.split()[0] for line in listing[1:-2]] == [f"{f}.gco"
+                                                            for f in dict.fromkeys(files)]
     assert say(link, "M23 nothere") == ["open failed, File: nothere.", "ok"]
 
 
@@ -101,8 +102,9 @@ def test_an_upload_prints_while_it_uploads_and_octoprint_pauses_resumes_cancels(
         assert time.monotonic() < deadline
         time.sleep(0.05)
     assert say(link, "M27") == ["Not SD printing", "ok"]
-    assert any(line.startswith("partA 901") for line in say(link, "M20"))
-    assert say(link, "M23 partA") == ["File opened: partA Size: 901", "File selected", "ok"]
+    assert "partA.gco 901" in say(link, "M20")
+    assert say(link, "M23 partA.gco") == ["File opened: partA.gco Size: 901", "File selected",
+                                          "ok"]
     link.close()
     state = link.state
     done = CliRunner().invoke(cli, ["sim", "stop", "--state", str(state), "--json"])
