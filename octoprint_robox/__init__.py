@@ -30,7 +30,7 @@ class RoboxPlugin:
     """The plugin's hooks (it needs no other part of OctoPrint's plugin API)."""
 
     def __init__(self):
-        self._links = {}
+        self._current = None  # the link of the robox: port OctoPrint is connected to
         self._log = logging.getLogger("octoprint.plugins.robox")
 
     # ------------------------------------------------------------------ ports
@@ -52,7 +52,6 @@ class RoboxPlugin:
         printer = stack.enter_context(open_printer(spec))
         _into_robox_mode(printer)
         link = RoboxLink(printer, float(read_timeout), closer=stack.close, port=port)
-        self._links[port] = link
         self._current = link
         return link
 
@@ -72,33 +71,32 @@ class RoboxPlugin:
     # ------------------------------------------------------------ card upload
     def card_upload(self, printer, filename, path, started, succeeded, failed,
                     *args, **kwargs):
-        link = getattr(self, "_current", None)
-        if link is None or link._closed:
+        link = self._current
+        if link is None or link.closed:
             return None  # not a Robox port: OctoPrint's own upload
-        import hashlib
+        from pathlib import Path
 
         from octoprint_robox.link import shown
         from robox.formats.sdcard import default_id
         from robox.gcode import job_file
         from robox.gcode.files import inspect
 
-        detected = inspect(path)
-        digest = hashlib.sha1()
-        with open(path, "rb") as original:
-            for block in iter(lambda: original.read(1 << 20), b""):
-                digest.update(block)
-        remote = default_id(filename.rsplit("/", 1)[-1].rsplit(".", 1)[0], digest.hexdigest())
+        # the job is prepared first, so that its id follows send-job's rule (name and
+        # the prepared content's SHA-1); it is uploaded in the background
+        options = None
+        if inspect(path).from_slicer:
+            from robox.cli.printer import printer_options
+
+            options = printer_options(link.printer, None, None, None)
+        prepared = contextlib.ExitStack()
+        job = prepared.enter_context(job_file(path, options))
+        remote = default_id(Path(filename).stem, job.sha1)
 
         def run() -> None:
             begun = time.monotonic()
-            started(filename, remote)
+            started(filename, shown(remote))
             try:
-                options = None
-                if detected.from_slicer:
-                    from robox.cli.printer import printer_options
-
-                    options = printer_options(link.printer, None, None, None)
-                with job_file(path, options) as job, open(job.path, "rb") as source:
+                with prepared, open(job.path, "rb") as source:
                     link.upload(source, remote, job.lines)
             except Exception:
                 self._log.exception("upload of %s to the Robox failed", filename)

@@ -111,6 +111,10 @@ class RoboxLink:
                 return (self._output.popleft() + "\n").encode()
         return b""
 
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
     def close(self) -> None:
         self._closed = True
         with self._ready:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -147,8 +148,6 @@ def _served(directory: Path, timeout_ms: int, announce=None) -> Printer:
 
 
 def _started(record: dict) -> None:
-    import sys
-
     print(f"robox-cli: started the virtual printer in the background (PID {record['pid']}, "
           f"{record['pty']}); `robox-cli sim stop` switches it off", file=sys.stderr)
 

@@ -1,10 +1,12 @@
 """The serial port OctoPrint sees for a Robox (octoprint_robox.link.RoboxLink), driven line
 by line as OctoPrint drives it, against a served virtual printer through its pty."""
 
+import hashlib
 import io
 import json
 import os
 import signal
+import threading
 import time
 
 import pytest
@@ -135,3 +137,35 @@ def test_the_plain_serial_report_gets_the_right_names():
         "T1": (0.0, None), "T0": (19.0, None), "B": (20.0, None), "C": (21.0, None)}
     marlin = {"T0": (200.0, 210.0), "B": (60.0, 60.0)}
     assert RoboxPlugin().temperatures(None, marlin) == marlin
+
+
+def test_octoprints_card_upload_stores_the_job_under_send_jobs_id_and_prints_it(link, tmp_path):
+    from robox.formats.sdcard import default_id
+
+    plugin = RoboxPlugin()
+    plugin._current = link
+    source = tmp_path / "tower.gcode"
+    source.write_bytes(JOB.replace(b"\r", b"\n"))
+    said = []
+    done = threading.Event()
+
+    def succeeded(*args):
+        said.append(("succeeded", *args[:2]))
+        done.set()
+
+    def failed(*args):
+        said.append(("failed", *args[:2]))
+        done.set()
+
+    remote = plugin.card_upload(None, "tower.gcode", str(source),
+                                lambda *args: said.append(("started", *args)), succeeded,
+                                failed)
+    expected = default_id("tower", hashlib.sha1(JOB).hexdigest())
+    assert remote == f"{expected}.gco"
+    assert done.wait(60)
+    assert said == [("started", "tower.gcode", remote), ("succeeded", "tower.gcode", remote)]
+    assert link.printer.status().job == expected  # printing began during the upload
+    link.printer.abort()
+    link.close()
+    CliRunner().invoke(cli, ["sim", "stop", "--state", str(link.state)])
+    assert card_images.get_file(link.state / "sdcard.img", expected) == JOB
