@@ -35,3 +35,13 @@ def read_back(fs: FileSystem, file_id: bytes | str) -> bytes | None:
 def pattern(size: int, seed: int) -> bytes:
     """Deterministic content that differs per seed and per block."""
     return np.random.default_rng(seed).integers(0, 256, size, dtype=np.uint8).tobytes()
+
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _own_state_home(tmp_path_factory, monkeypatch):
+    """What the host records of printers' cards (robox.host.catalogue) stays in the test's
+    own directory, never the user's."""
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("state-home")))

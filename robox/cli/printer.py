@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from dataclasses import asdict
@@ -18,6 +19,7 @@ from robox.formats.sdcard import default_id, make_id
 from robox.gcode import JobFile, Options, job_file
 from robox.gcode.files import inspect
 from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
+from robox.host import catalogue
 from robox.host.client import DEFAULT_TIMEOUT_MS, EEPROMS, CatchUpPoints, catch_up_lines
 from robox.host.devices import NoPrinter, list_printers, open_printer
 from robox.host.transport import Disconnected
@@ -117,14 +119,32 @@ def describe_heater(t: dict) -> str:
 @json_option
 @click.pass_context
 def files_cmd(ctx, as_json: bool) -> None:
-    """List the files on the printer's SD card, oldest first."""
+    """List the files on the printer's SD card, oldest first.
+
+    The printer gives ids only: sizes, line counts and the job flag come from what this
+    computer uploaded (`?` otherwise). A repeated id is listed per copy; the newest is
+    the one a run by id prints."""
     with device(ctx) as printer:
-        files = printer.files()
+        listed = printer.files()
+        known = catalogue.load(printer.unique_id()) if listed else {}
+    files = catalogue.describe(listed, known)
     if as_json:
         emit_json(files)
-    else:
-        for name in files:
-            click.echo(name)
+        return
+    if not files:
+        click.echo("no files")
+        return
+    width = max(len(f["id"]) for f in files)
+    click.echo(f"{'ID':<{width}}  {'BYTES':>9}  {'LINES':>7}  KIND")
+    for f in files:
+        size = "?" if f["size"] is None else f"{f['size']:,}"
+        lines = "?" if f["lines"] is None else f"{f['lines']:,}"
+        kind = "?" if f["job"] is None else ("job" if f["job"] else "file")
+        note = "  (newest copy)" if f["newest"] and f["copies"] > 1 else \
+            ("  (older copy)" if f["copies"] > 1 else "")
+        click.echo(f"{f['id']:<{width}}  {size:>9}  {lines:>7}  {kind:<4}{note}".rstrip())
+    if any(f["size"] is None for f in files):
+        click.echo("(? : not uploaded from this computer; the printer's list gives ids only)")
 
 
 @click.command("send-job")
@@ -220,6 +240,8 @@ def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
                 raise RoboxError(f"the printer was disconnected after {done_bytes[0]} of "
                                  f"{job.size} bytes; run the same command with --resume to "
                                  "continue") from None
+        with contextlib.suppress(OSError):
+            catalogue.record(printer.unique_id(), name, job.size, job.lines, True, job.sha1)
         summary = {"id": name, "bytes": job.size, "lines": job.lines,
                    "resumed_from_byte": sent.first_chunk * 512, "restarted": sent.restarted,
                    "printing": sent.printing}

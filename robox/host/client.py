@@ -340,7 +340,9 @@ class Printer:
     def send_file(self, data: bytes | BinaryIO, file_id: str, job: bool = True,
                   run: bool = True, resume: bool = False,
                   progress: Callable[[int, int], None] | None = None,
-                  notice: Callable[[str], None] | None = None) -> Sent:
+                  notice: Callable[[str], None] | None = None,
+                  ready: Callable[[], None] | None = None, follow: bool = False,
+                  held: Callable[[], bool] | None = None) -> Sent:
         """Store `data` (bytes, or a seekable binary file read a chunk at a time) as a
         file: start, chunks, end. A job starts printing once more than one chunk is
         stored, and is resumed whenever it pauses because it caught up with the upload
@@ -350,7 +352,13 @@ class Printer:
         A printer that was switched off or reset has no upload open: its partial file was
         never committed, so with `resume` the file is sent again from the start, and a job
         is then not started (its print was cut short on the bed; run_job prints it from
-        the start once the bed is clear). Returns what happened."""
+        the start once the bed is clear).
+
+        `ready` is called once the job could start (more than one chunk stored, or the
+        whole file): with `run` False and `follow`, another party starts it then (a host
+        such as OctoPrint, with its own run command), and the upload still resumes the
+        job whenever it catches up, except while `held()` says the job was paused on
+        purpose (a pause at a catch-up line looks the same). Returns what happened."""
         source = io.BytesIO(data) if isinstance(data, bytes | bytearray) else data
         size = source.seek(0, io.SEEK_END)
         stored = make_id(file_id)
@@ -372,7 +380,7 @@ class Printer:
             self.ack((b"\x97" if job else b"\x90") + stored, f"start {name}")
         # a job whose run command was lost with the link is not running yet: ask
         started = resume and not restarted and first > 1 and self.status().job == name
-        watch = job and run
+        watch = job and (run or follow)
         noticed = set()
 
         def tell(message: str) -> None:
@@ -392,20 +400,27 @@ class Printer:
             caught_up_at.add(lines)
             if progress:
                 progress((sequence + 1) * CHUNK, size)
-            if watch and not started and sequence >= 1:
-                self.run_job(name)
+            if not started and sequence >= 1:
+                if watch and run:
+                    self.run_job(name)
                 started = True
-            elif watch and started and sequence % CATCH_UP_CHECK_CHUNKS == 0:
+                if ready is not None:
+                    ready()
+            elif watch and started and sequence % CATCH_UP_CHECK_CHUNKS == 0 and \
+                    not (held and held()):
                 self.resume_if_caught_up(name, caught_up_at, tell)
         self.ack(b"\x92" + f"{chunks:08x}{len(tail):04x}".encode() + tail, f"end {name}")
         if progress:
             progress(size, size)
-        if watch and not started:
-            self.run_job(name)
-        elif watch:
+        if not started:
+            if watch and run:
+                self.run_job(name)
+            if ready is not None:
+                ready()
+        elif watch and not (held and held()):
             # a pause made while the last chunks were on their way stays until resumed
             self.resume_if_caught_up(name, caught_up_at, tell)
-        return Sent(first, restarted, watch)
+        return Sent(first, restarted, job and run)
 
     # ---------------------------------------------------- update firmware
     def update_firmware(self, image: bytes, file_id: str = "robox_firmware",

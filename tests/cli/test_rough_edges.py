@@ -230,3 +230,33 @@ def test_shell_completion_as_the_readme_says():
     assert done.stdout.decode().split() == ["plain,sdcard"]
     assert 'eval "$(_ROBOX_CLI_COMPLETE=bash_source robox-cli)"' in \
         (ROOT / "README.md").read_text()
+
+
+# ------------------------------------------------ files: sizes, job flag, newest copy
+def test_files_gives_what_this_computer_uploaded_and_marks_the_newest_copy(tmp_path):
+    from robox.offline import sdcard as card_images
+
+    state = tmp_path / "printer"
+    device = ["--device", f"sim-once:{state}"]
+    job = tmp_path / "part.gcode"
+    job.write_bytes(b"G28 X Y\nG1 X20 Y20 F3000\nG1 X30 Y20\n")
+    runner = CliRunner()
+    for _ in range(2):
+        sent = runner.invoke(cli, [*device, "send-job", str(job), "--json"])
+        assert sent.exit_code == 0, sent.output
+    name = json.loads(sent.stdout)["id"]
+    listed = runner.invoke(cli, [*device, "files", "--json"])
+    assert listed.exit_code == 0, listed.output
+    files = json.loads(listed.stdout)
+    copies = [f for f in files if f["id"] == name]
+    stored = card_images.get_file(state / "sdcard.img", name)  # the card's own bytes
+    assert [f["newest"] for f in copies] == [False, True]
+    assert all(f["size"] == len(stored) and f["lines"] == stored.count(b"\r")
+               and f["job"] is True and f["copies"] == 2 for f in copies)
+    others = [f for f in files if f["id"] != name]
+    assert others and all(f["size"] is None and f["job"] is None for f in others)
+    text = runner.invoke(cli, [*device, "files"]).stdout.splitlines()
+    assert text[0].split() == ["ID", "BYTES", "LINES", "KIND"]
+    mine = [line for line in text if line.startswith(name)]
+    assert mine[0].endswith("(older copy)") and mine[1].endswith("(newest copy)")
+    assert f"{len(stored):,}" in mine[1] and " job " in mine[1]

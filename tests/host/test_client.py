@@ -45,7 +45,7 @@ def test_send_job_wait_prints_the_example_to_the_end(state):
     assert summary["errors"] == [] and summary["simulated_print_time_s"] > 60
     assert 0 < summary["filament_used_mm"]["reel0"] < 1000
     files = json.loads(sim(state, "files", "--json").output)
-    assert files[-1] == summary["id"]
+    assert files[-1]["id"] == summary["id"] and files[-1]["size"] == summary["bytes"]
     human = sim(state, "send-job", str(EXAMPLE), "--wait")
     assert "printed in" in human.output and "errors: none" in human.output
 
@@ -236,7 +236,8 @@ def test_over_a_real_pty(served):
     assert result.exit_code == 0, result.output
     summary = json.loads(result.output)
     assert summary["errors"] == []
-    assert summary["id"] in json.loads(run("--device", served, "files", "--json").output)
+    assert summary["id"] in [f["id"] for f in
+                             json.loads(run("--device", served, "files", "--json").output)]
 
 
 class LineEnds:
