@@ -31,6 +31,7 @@ class RoboxPlugin:
 
     def __init__(self):
         self._current = None  # the link of the robox: port OctoPrint is connected to
+        self._plain_robox = None  # the connection whose M105 showed a Robox in text mode
         self._log = logging.getLogger("octoprint.plugins.robox")
 
     # ------------------------------------------------------------------ ports
@@ -61,12 +62,22 @@ class RoboxPlugin:
         under OctoPrint's names. OctoPrint has already read `T:` as the current tool."""
         if "S" not in parsed or "A" not in parsed:
             return parsed  # not a Robox's report
+        self._plain_robox = comm_instance
         renamed = {}
         for key, value in parsed.items():
             if key.startswith("T") and key not in ("T", "T0", "T1"):
                 continue
             renamed[PLAIN_NAMES.get(key, key)] = value
         return renamed
+
+    def targets(self, comm_instance, phase, cmd, cmd_type, gcode, *args, **kwargs):
+        """On a plain serial port to a Robox, OctoPrint's `M104 T1 S210` (tool 1) in the
+        Robox's own words (`M104 T210`): see `robox_temperature_lines`."""
+        if comm_instance is None or comm_instance is not self._plain_robox:
+            return None
+        from octoprint_robox.link import robox_temperature_lines
+
+        return robox_temperature_lines(cmd)
 
     # ------------------------------------------------------------ card upload
     def card_upload(self, printer, filename, path, started, succeeded, failed,
@@ -94,15 +105,24 @@ class RoboxPlugin:
 
         def run() -> None:
             begun = time.monotonic()
+            told = []
+
+            def ready() -> None:
+                # OctoPrint selects (and, if asked, prints) the file once told it is
+                # stored: told as soon as it can print, so it prints while uploading
+                told.append(True)
+                succeeded(filename, shown(remote), time.monotonic() - begun)
+
             started(filename, shown(remote))
             try:
                 with prepared, open(job.path, "rb") as source:
-                    link.upload(source, remote, job.lines)
-            except Exception:
+                    link.upload(source, remote, job.lines, ready=ready)
+            except Exception as exc:
                 self._log.exception("upload of %s to the Robox failed", filename)
-                failed(filename, shown(remote), time.monotonic() - begun)
-                return
-            succeeded(filename, shown(remote), time.monotonic() - begun)
+                if told:
+                    link.notify(f"the upload of {shown(remote)} failed: {exc}")
+                else:
+                    failed(filename, shown(remote), time.monotonic() - begun)
 
         threading.Thread(target=run, name="robox-upload", daemon=True).start()
         return shown(remote)
@@ -140,5 +160,6 @@ def __plugin_load__():
         "octoprint.comm.transport.serial.additional_port_names": plugin.port_names,
         "octoprint.comm.transport.serial.factory": plugin.serial_factory,
         "octoprint.comm.protocol.temperatures.received": plugin.temperatures,
+        "octoprint.comm.protocol.gcode.queuing": plugin.targets,
         "octoprint.printer.sdcardupload": plugin.card_upload,
     }

@@ -21,8 +21,12 @@ doing what the line asks through the client:
   `//action:notification Robox: ...` (OctoPrint shows them) and cleared.
 
 A card upload (`RoboxLink.upload`) goes through the same client, a chunk at a
-time between OctoPrint's own lines, and starts printing after the second chunk,
-as `robox-cli send-job` does: print while uploading.
+time between OctoPrint's own lines. Once two chunks are stored the upload counts
+as done for OctoPrint, which then selects the file (M23) and, when asked to
+print, starts it (M24) while the rest uploads: print while uploading, as
+`robox-cli send-job` does. The upload resumes the job whenever it catches up
+with it; a failure after that point is said as a notification. Sizes (lines)
+come from the host's catalogue of what it uploaded (`robox.host.catalogue`).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from collections.abc import Callable
 
 from robox.errors import RoboxError
 from robox.formats.protocol import error_names
+from robox.host import catalogue
 
 LINE_NUMBER = re.compile(r"^N-?\d+\s*")
 CHECKSUM = re.compile(r"\*\d+\s*$")
@@ -48,6 +53,9 @@ def shown(file_id: str) -> str:
 
 
 def card_id(name: str) -> str:
+    """The card id of a name OctoPrint uses (`/id.gco`: it selects a card's file by
+    its path from the card's root)."""
+    name = name.strip().lstrip("/")
     return name[: -len(SUFFIX)] if name.lower().endswith(SUFFIX) else name
 
 
@@ -64,6 +72,41 @@ def temperature_line(status) -> str:
     return " ".join(parts)
 
 
+def _word(text: str, letter: str) -> str | None:
+    m = re.search(rf"(?<![A-Za-z]){letter}\s*(-?\d+(?:\.\d*)?|-?\.\d+)?", text,
+                  re.IGNORECASE)
+    if m is None:
+        return None
+    return m.group(1) or ""
+
+
+def robox_temperature_lines(line: str) -> list[str] | None:
+    """A Marlin-style temperature line as the Robox's own lines, or None if it is not one.
+
+    Marlin's `M104 T1 S210` sets tool 1; the Robox reads `S` as nozzle 0's target and `T`
+    as nozzle 1's, so it would set nozzle 0 to 210 and nozzle 1 to 1. `M109` and `M190`
+    take no target on the Robox: the target is set first, then the wait. OctoPrint's
+    chamber (`M141`/`M191`) is the Robox's ambient (`M170`)."""
+    word = line.split()[0].upper() if line.split() else ""
+    rest = line[len(word):]
+    if word in ("M104", "M109"):
+        tool, value = _word(rest, "T"), _word(rest, "S")
+        if value is None:
+            return None if tool is None or word == "M104" else ["M109"]
+        letter = "T" if tool not in (None, "", "0") and float(tool) >= 1 else "S"
+        lines = [f"M104 {letter}{value}"]
+        return [*lines, "M109"] if word == "M109" else lines
+    if word in ("M140", "M190"):
+        value = _word(rest, "S")
+        if value is None:
+            return None
+        return [f"M140 S{value}"] + (["M190"] if word == "M190" else [])
+    if word in ("M141", "M191"):
+        value = _word(rest, "S")
+        return None if value is None else [f"M170 S{value}"]
+    return None
+
+
 class RoboxLink:
     """A serial-like object (readline, write, close, timeout) for OctoPrint."""
 
@@ -78,7 +121,13 @@ class RoboxLink:
         self._ready = threading.Condition()
         self._selected: str | None = None
         self._printing: str | None = None
-        self._lines: dict[str, int] = {}    # file id -> lines, for files uploaded here
+        self._lines: dict[str, int] = {}    # file id -> lines, where known
+        self._uploading: str | None = None  # the file this link is storing now
+        self._held = False  # paused by OctoPrint: an upload's catch-up resume leaves it
+        with contextlib.suppress(RoboxError):
+            known = catalogue.load(printer.unique_id())
+            self._lines = {k: v["lines"] for k, v in known.items()
+                           if isinstance(v.get("lines"), int)}
         self._closed = False
         exchange = printer.transact
 
@@ -137,7 +186,9 @@ class RoboxLink:
                 handler = getattr(self, f"_{word}", None)
                 if handler is not None:
                     return handler(line)
-                reply = self.printer.gcode(line + "\r")  # a line runs once it has its end
+                lines = robox_temperature_lines(line) or [line]
+                reply = "".join(self.printer.gcode(one + "\r")  # runs once it has its end
+                                for one in lines)
         except RoboxError as exc:
             return [f"//action:notification Robox: {exc}", "ok"]
         return [*(r for r in reply.splitlines() if r.strip() and r.strip() != "ok"), "ok"]
@@ -152,21 +203,38 @@ class RoboxLink:
                 f"UUID:{self.printer.unique_id()} EXTRUDER_COUNT:2",
                 "Cap:SDCARD:1", "Cap:AUTOREPORT_TEMP:0", "ok"]
 
+    def _M114(self, line: str) -> list[str]:
+        """The Robox's position (`X: Y: Z: B: T:`), with the `E:` OctoPrint looks for
+        (E is always relative on a Robox: its position is not kept)."""
+        reply = self.printer.gcode("M114\r").strip()
+        lines = [r for r in reply.splitlines() if r.strip() and r.strip() != "ok"]
+        if lines and "E:" not in lines[0]:  # OctoPrint wants E straight after Z
+            lines[0] = re.sub(r"(Z:\s*-?[\d.]+)", r"\1 E:0.000000", lines[0], count=1)
+        return [*lines, "ok"]
+
     def _M110(self, line: str) -> list[str]:
         return ["ok"]
 
     def _M21(self, line: str) -> list[str]:
         return ["SD card ok" if self.printer.sd_card_present() else "SD init fail", "ok"]
 
-    def _M20(self, line: str) -> list[str]:
+    def _card_files(self) -> list[str]:
+        """The card's ids, each once; the file being uploaded here too (the printer
+        lists a file once it is whole, but a job prints while it uploads)."""
         names = list(dict.fromkeys(self.printer.files()))  # a repeated id is one file
+        if self._uploading is not None and self._uploading not in names:
+            names.append(self._uploading)
+        return names
+
+    def _M20(self, line: str) -> list[str]:
+        names = self._card_files()
         return ["Begin file list", *(f"{shown(n)} {self._lines.get(n, 0)}" for n in names),
                 "End file list", "ok"]
 
     def _M23(self, line: str) -> list[str]:
         asked = line.split(None, 1)[1].strip() if " " in line else ""
         name = card_id(asked)
-        if name not in self.printer.files():
+        if name not in self._card_files():
             return [f"open failed, File: {asked}.", "ok"]
         self._selected = name
         return [f"File opened: {shown(name)} Size: {self._lines.get(name, 0)}",
@@ -175,14 +243,18 @@ class RoboxLink:
     def _M24(self, line: str) -> list[str]:
         status = self.printer.status()
         if status.job is not None and status.pause in ("pausing", "paused", "selfie pause"):
+            self._held = False
             self.printer.resume()
         elif status.job is None and self._selected:
             self.printer.run_job(self._selected)
             self._printing = self._selected
+        elif status.job is not None:
+            self._printing = status.job  # already printing: followed to its end
         return ["ok"]
 
     def _M25(self, line: str) -> list[str]:
         if self.printer.status().job is not None:
+            self._held = True
             self.printer.pause()
         return ["ok"]
 
@@ -190,6 +262,7 @@ class RoboxLink:
         if re.search(r"\bS0\b", line) and self.printer.status().job is not None:
             self.printer.abort()  # OctoPrint's cancel: M25, M27, M26 S0
             self._printing = None
+            self._held = False
         return ["ok"]
 
     def _M27(self, line: str) -> list[str]:
@@ -197,7 +270,9 @@ class RoboxLink:
         if status.job is None:
             return ["Not SD printing", "ok"]
         total = self._lines.get(status.job, 0)
-        return [f"SD printing byte {min(status.line, total) if total else 0}/{total}", "ok"]
+        if not total:  # unknown: a position with no size (OctoPrint shows no percentage)
+            return [f"SD printing byte {max(status.line, 1)}/0", "ok"]
+        return [f"SD printing byte {min(status.line, total)}/{total}", "ok"]
 
     # ------------------------------------------------------------- background
     def _errors(self) -> list[str]:
@@ -220,10 +295,16 @@ class RoboxLink:
             self._lock.release()
 
     # ----------------------------------------------------------------- upload
-    def upload(self, source, file_id: str, lines: int, progress=None) -> None:
-        """Store `source` on the card as job `file_id`, printing it while it uploads."""
+    def notify(self, message: str) -> None:
+        """Say `message` as an OctoPrint notification."""
+        self._say(f"//action:notification Robox: {message}")
+
+    def upload(self, source, file_id: str, lines: int, progress=None, ready=None) -> None:
+        """Store `source` on the card as job `file_id`. `ready` is called once it can
+        print (more than one chunk stored): OctoPrint then selects and starts it while
+        the rest uploads, and the upload resumes the job whenever it catches up."""
         self._lines[file_id] = lines
-        self._selected = file_id
+        size = source.seek(0, 2)
 
         def each_chunk(done: int, total: int) -> None:
             if self._closed:
@@ -231,5 +312,12 @@ class RoboxLink:
             if progress is not None:
                 progress(done, total)
 
-        self._printing = file_id
-        self.printer.send_file(source, file_id, progress=each_chunk)
+        self._uploading = file_id
+        try:
+            self.printer.send_file(source, file_id, run=False, follow=True,
+                                   progress=each_chunk, ready=ready,
+                                   held=lambda: self._held)
+        finally:
+            self._uploading = None
+        with contextlib.suppress(RoboxError, OSError):
+            catalogue.record(self.printer.unique_id(), file_id, size, lines, True)

@@ -84,11 +84,21 @@ def test_firmware_and_card_as_octoprint_asks_for_them(link):
 
 
 def test_an_upload_prints_while_it_uploads_and_octoprint_pauses_resumes_cancels(link):
-    link.upload(io.BytesIO(JOB), "partA", 901)
-    status = link.printer.status()
-    assert status.job == "partA"  # printing began during the upload
-    progress = say(link, "M27")
-    assert progress[0].startswith("SD printing byte ") and progress[0].endswith("/901")
+    seen = {}
+
+    def ready():
+        # OctoPrint, told the file is stored, selects it by its path and prints it
+        seen["select"] = say(link, "M23 /partA.gco")
+        seen["print"] = say(link, "M24")
+        seen["status"] = link.printer.status()
+        seen["open"] = link.printer.send_file_report()  # the upload the printer has open
+        seen["progress"] = say(link, "M27")
+
+    link.upload(io.BytesIO(JOB), "partA", 901, ready=ready)
+    assert seen["select"] == ["File opened: partA.gco Size: 901", "File selected", "ok"]
+    assert seen["status"].job == "partA" and seen["open"][0] == "partA"
+    assert seen["progress"][0].startswith("SD printing byte ")
+    assert seen["progress"][0].endswith("/901")
     assert say(link, "M25") == ["ok"]
     deadline = time.monotonic() + 30
     while link.printer.status().pause != "paused":
@@ -112,6 +122,66 @@ def test_an_upload_prints_while_it_uploads_and_octoprint_pauses_resumes_cancels(
     done = CliRunner().invoke(cli, ["sim", "stop", "--state", str(state), "--json"])
     assert json.loads(done.stdout)["stopped"] is True
     assert card_images.get_file(state / "sdcard.img", "partA") == JOB
+
+
+def test_a_pause_from_octoprint_during_the_upload_is_not_undone_by_it(link):
+    # the upload resumes a job paused where it caught up with the stored chunks; a pause
+    # OctoPrint asked for (M25) at such a line looks the same and must stay
+    lines = []
+
+    def ready():
+        say(link, "M23 partB.gco")
+        say(link, "M24")
+        deadline = time.monotonic() + 30
+        while link.printer.status().pause != "paused":  # caught up with the two chunks
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        say(link, "M25")  # the user pauses it there
+        lines.append(link.printer.status().line)
+
+    link.upload(io.BytesIO(JOB * 2), "partB", 1802, ready=ready)
+    status = link.printer.status()
+    assert status.job == "partB" and status.pause == "paused" and status.line == lines[0]
+    assert say(link, "M24") == ["ok"]  # OctoPrint's resume
+    assert link.printer.status().pause not in ("pausing", "paused")
+    link.printer.abort()
+
+
+def test_octoprints_names_and_lines_for_the_robox():
+    from octoprint_robox.link import card_id, robox_temperature_lines
+
+    assert card_id("/partA.gco") == card_id("partA.GCO") == "partA"
+    # Marlin's tool-indexed targets in the Robox's words (S: nozzle 0, T: nozzle 1)
+    assert robox_temperature_lines("M104 T1 S210") == ["M104 T210"]
+    assert robox_temperature_lines("M104 T0 S200") == ["M104 S200"]
+    assert robox_temperature_lines("M104 S0") == ["M104 S0"]
+    assert robox_temperature_lines("M109 T1 S215") == ["M104 T215", "M109"]
+    assert robox_temperature_lines("M190 S60") == ["M140 S60", "M190"]
+    assert robox_temperature_lines("M141 S35") == ["M170 S35"]
+    assert robox_temperature_lines("M104 T1") is None  # the Robox's own: nozzle 1 on
+    assert robox_temperature_lines("G1 X1") is None
+
+
+def test_tool_one_target_reaches_nozzle_one_and_m114_parses(link):
+    say(link, "M104 T1 S180")  # OctoPrint setting tool 1
+    deadline = time.monotonic() + 10
+    while link.printer.status().temperatures["nozzle1"].get("target") != 180.0:
+        assert time.monotonic() < deadline, link.printer.status().temperatures
+        time.sleep(0.05)
+    assert link.printer.status().temperatures["nozzle0"].get("target") != 180.0
+    say(link, "M104 T1 S0")
+    comm = pytest.importorskip("octoprint.util.comm")
+    position = say(link, "M114")
+    assert comm.parse_position_line(position[0]) == {"x": 0.0, "y": 0.0, "z": 0.0, "e": 0.0}
+
+
+def test_a_file_of_unknown_size_reports_a_position_octoprint_does_not_cancel(link):
+    short = b"G28 X Y\r" + b"G4 S5\r"
+    link.printer.send_file(io.BytesIO(short), "other", run=True)  # another host's upload
+    answer = say(link, "M27")[0]
+    current, total = answer.removeprefix("SD printing byte ").split("/")
+    assert int(current) > 0 and total == "0"  # OctoPrint's "0/0" means not printing
+    link.printer.abort()
 
 
 def test_a_job_started_from_octoprint_says_done_when_it_ends(link):
@@ -151,6 +221,10 @@ def test_octoprints_card_upload_stores_the_job_under_send_jobs_id_and_prints_it(
 
     def succeeded(*args):
         said.append(("succeeded", *args[:2]))
+        # as OctoPrint does when asked to print: select, then start
+        say(link, f"M23 /{args[1]}")
+        say(link, "M24")
+        said.append(("printing", link.printer.status().job, link.printer.send_file_report()[0]))
         done.set()
 
     def failed(*args):
@@ -163,8 +237,12 @@ def test_octoprints_card_upload_stores_the_job_under_send_jobs_id_and_prints_it(
     expected = default_id("tower", hashlib.sha1(JOB).hexdigest())
     assert remote == f"{expected}.gco"
     assert done.wait(60)
-    assert said == [("started", "tower.gcode", remote), ("succeeded", "tower.gcode", remote)]
-    assert link.printer.status().job == expected  # printing began during the upload
+    assert said == [("started", "tower.gcode", remote), ("succeeded", "tower.gcode", remote),
+                    ("printing", expected, expected)]  # printing while it uploads
+    deadline = time.monotonic() + 60
+    while link.printer.send_file_report()[0] is not None:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
     link.printer.abort()
     link.close()
     CliRunner().invoke(cli, ["sim", "stop", "--state", str(link.state)])

@@ -1,0 +1,242 @@
+"""OctoPrint itself, from PyPI, driving a served virtual printer through the plugin.
+
+OctoPrint is started headless on 127.0.0.1 with its own base directory and driven
+through its REST API only, as a user's browser does. The printer is a virtual one
+served in the background (`robox-cli sim serve --detach`), reached through the
+plugin's `robox:sim:DIR` port. Checked, each through what OctoPrint reports:
+
+- the Robox's four heaters under OctoPrint's names (tool0, tool1, bed, chamber),
+  and a target set on tool 0 reaching nozzle 0 alone;
+- an upload to the card with print: OctoPrint is printing from the card before the
+  upload has ended (print while uploading), progress advances, and pause, resume and
+  cancel reach the printer; the stored file is the job `robox-cli send-job` would
+  store, byte for byte;
+- a printer error (a job line too long) shown as an OctoPrint notification.
+
+OctoPrint is taken from this environment when installed (`.[test]` installs it),
+else installed into a scratch environment; the test is skipped, saying why, only
+when that installation fails.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from robox.formats.sdcard import default_id
+from robox.gcode import job_file
+
+REPO = Path(__file__).resolve().parents[2]
+KEY = "0123456789ABCDEF0123456789ABCDEF"
+DISABLED = ["announcements", "tracking", "discovery", "errortracking", "softwareupdate",
+            "pluginmanager", "firmware_check", "healthcheck", "achievements",
+            "virtual_printer", "gcodeviewer", "backup"]
+
+
+@pytest.fixture(scope="module")
+def octoprint_python(tmp_path_factory) -> str:
+    if importlib.util.find_spec("octoprint") is not None:
+        return sys.executable
+    venv = tmp_path_factory.mktemp("octoprint-venv")
+    try:
+        subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True,
+                       capture_output=True, timeout=300)
+        subprocess.run([str(venv / "bin" / "pip"), "install", "-q", "OctoPrint>=1.10",
+                        "-e", str(REPO)], check=True, capture_output=True, timeout=900)
+    except (subprocess.CalledProcessError, subprocess.TimeoutExpired, OSError) as exc:
+        detail = getattr(exc, "stderr", b"") or b""
+        pytest.skip(f"OctoPrint could not be installed: {exc} "
+                    f"{detail.decode(errors='replace')[-300:]}")
+    return str(venv / "bin" / "python")
+
+
+class OctoPrint:
+    def __init__(self, url: str):
+        self.url = url
+
+    def call(self, method: str, path: str, body=None, raw: bytes | None = None,
+             content_type: str = "application/json"):
+        data = raw if raw is not None else (json.dumps(body).encode() if body is not None
+                                            else None)
+        request = urllib.request.Request(self.url + path, data=data, method=method,
+                                         headers={"X-Api-Key": KEY,
+                                                  "Content-Type": content_type})
+        with urllib.request.urlopen(request, timeout=60) as reply:
+            text = reply.read()
+        return json.loads(text) if text else None
+
+    def upload_to_card(self, name: str, data: bytes, print_it: bool) -> dict:
+        boundary = "robox-test-boundary"
+        body = (f"--{boundary}\r\nContent-Disposition: form-data; name=\"file\"; "
+                f"filename=\"{name}\"\r\nContent-Type: application/octet-stream\r\n\r\n"
+                ).encode() + data + (
+                f"\r\n--{boundary}\r\nContent-Disposition: form-data; name=\"print\"\r\n\r\n"
+                f"{'true' if print_it else 'false'}\r\n--{boundary}--\r\n").encode()
+        return self.call("POST", "/api/files/sdcard", raw=body,
+                         content_type=f"multipart/form-data; boundary={boundary}")
+
+    def until(self, what: str, check, timeout: float = 60.0, every: float = 0.05):
+        deadline = time.monotonic() + timeout
+        last = None
+        while time.monotonic() < deadline:
+            last = check()
+            if last:
+                return last
+            time.sleep(every)
+        raise AssertionError(f"OctoPrint never showed {what} (last: {last!r})")
+
+    def state(self) -> str:
+        return self.call("GET", "/api/job")["state"]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def rig(octoprint_python, tmp_path_factory):
+    base = tmp_path_factory.mktemp("octoprint-rig")
+    env = dict(os.environ, HOME=str(base / "home"), XDG_RUNTIME_DIR=str(base / "run"),
+               XDG_STATE_HOME=str(base / "state"), XDG_DATA_HOME=str(base / "data"))
+    for d in ("home", "run"):
+        (base / d).mkdir()
+    state = base / "printer"
+    cli = [sys.executable, "-m", "robox.cli"]
+    subprocess.run([*cli, "sim", "serve", "--detach", "--speed", "10", "--state", str(state)],
+                   env=env, check=True, capture_output=True, timeout=60)
+    home = base / "octoprint"
+    home.mkdir()
+    (home / "config.yaml").write_text(
+        f"api:\n  key: {KEY}\nserver:\n  firstRun: false\n  onlineCheck:\n    enabled: false\n"
+        f"  pluginBlacklist:\n    enabled: false\nserial:\n  autoconnect: false\n  log: true\n"
+        f"plugins:\n  _disabled: [{', '.join(DISABLED)}]\n")
+    port = _free_port()
+    with open(base / "octoprint.log", "wb") as log:
+        server = subprocess.Popen([octoprint_python, "-m", "octoprint", "serve",
+                                   "--iknowwhatimdoing", "--basedir", str(home),
+                                   "--host", "127.0.0.1", "--port", str(port)],
+                                  env=env, stdout=log, stderr=subprocess.STDOUT)
+        op = OctoPrint(f"http://127.0.0.1:{port}")
+        try:
+            def up():
+                if server.poll() is not None:
+                    log_text = (base / "octoprint.log").read_text()
+                    raise AssertionError(f"OctoPrint exited: {log_text}")
+                with contextlib.suppress(OSError, urllib.error.URLError):
+                    return op.call("GET", "/api/version")
+                return None
+            op.until("its API", up, timeout=120, every=0.5)
+            yield op, state, env, base
+        finally:
+            server.terminate()
+            try:
+                server.wait(30)
+            except subprocess.TimeoutExpired:
+                server.kill()
+            subprocess.run([*cli, "sim", "stop", "--state", str(state)], env=env,
+                           capture_output=True, timeout=60)
+
+
+def _job(lines: int) -> bytes:
+    """A job long enough to print while it uploads (a few hundred chunks)."""
+    out = ["G28", "G90"]
+    for i in range(lines):
+        out.append(f"G1 X{10 + (i % 50)} Y{10 + (i * 7) % 50} F6000")
+    return ("\n".join(out) + "\n").encode()
+
+
+def _catalogue(base: Path) -> dict:
+    entries = {}
+    for path in (base / "state" / "robox" / "cards").glob("*.json"):
+        entries.update(json.loads(path.read_text())["files"])
+    return entries
+
+
+def test_octoprint_drives_a_robox(rig, tmp_path):
+    op, state, env, base = rig
+
+    # --- connect through the plugin's port for this virtual printer
+    ports = op.call("GET", "/api/connection")["options"]["ports"]
+    port = f"robox:sim:{state}"
+    assert port in ports, ports
+    op.call("POST", "/api/connection", {"command": "connect", "port": port,
+                                        "baudrate": 115200})
+    op.until("Operational", lambda: op.state() == "Operational")
+    op.call("PATCH", "/api/printerprofiles/_default",
+            {"profile": {"heatedChamber": True, "extruder": {"count": 2}}})
+
+    # --- temperatures under OctoPrint's names; tool 0's target reaches nozzle 0 (the
+    # virtual head is single-material: its nozzle 1 has no heater to set)
+    op.call("POST", "/api/printer/tool", {"command": "target", "targets": {"tool0": 150}})
+
+    def targets():
+        t = op.call("GET", "/api/printer").get("temperature", {})
+        if {"tool0", "tool1", "bed", "chamber"} <= t.keys() and t["tool0"]["target"] == 150:
+            return t
+        return None
+    t = op.until("tool 0 heating to 150", targets, timeout=30)
+    assert t["tool1"]["target"] == 0 and t["bed"]["target"] == 0
+    assert 0 < t["tool0"]["actual"] < 300 and 0 < t["chamber"]["actual"] < 100
+    op.call("POST", "/api/printer/tool", {"command": "target", "targets": {"tool0": 0}})
+    op.until("tool 0 off", lambda: op.call("GET", "/api/printer")["temperature"]["tool0"]
+             ["target"] == 0, timeout=30)
+
+    # --- upload with print: printing from the card while the upload goes on
+    source = tmp_path / "long_part.gcode"
+    source.write_bytes(_job(12000))
+    with job_file(str(source), None) as prepared:
+        expected = Path(prepared.path).read_bytes()
+        card_id = default_id("long_part", prepared.sha1)
+    reply = op.upload_to_card("long_part.gcode", source.read_bytes(), print_it=True)
+    assert reply["files"]["sdcard"]["name"] == f"{card_id}.gco"
+    op.until("printing from SD", lambda: op.state().startswith("Printing"), timeout=60,
+             every=0.02)
+    assert card_id not in _catalogue(base), "the upload had ended before the print began"
+    op.until("progress", lambda: (op.call("GET", "/api/job")["progress"]["completion"] or 0)
+             > 0, timeout=60)
+
+    # --- pause (the upload carries on), resume, cancel
+    op.call("POST", "/api/job", {"command": "pause", "action": "pause"})
+    op.until("Paused", lambda: op.state() == "Paused", timeout=60)
+    op.until("the upload's end", lambda: card_id in _catalogue(base), timeout=120)
+    entry = _catalogue(base)[card_id]
+    assert entry["size"] == len(expected) and entry["job"] is True
+    assert entry["lines"] == expected.count(b"\r")
+    assert op.state() == "Paused"
+    op.call("POST", "/api/job", {"command": "pause", "action": "resume"})
+    op.until("printing again", lambda: op.state().startswith("Printing"), timeout=60)
+    op.call("POST", "/api/job", {"command": "cancel"})
+    op.until("Operational after cancel", lambda: op.state() == "Operational", timeout=60)
+
+    # --- a printer error becomes an OctoPrint notification
+    bad = b"M117 " + b"A" * 700 + b"\nG4 S1\n"
+    op.upload_to_card("bad_line.gcode", bad, print_it=True)
+
+    def notified():
+        notes = op.call("GET", "/api/plugin/action_command_notification")["notifications"]
+        return [n for n in notes if "line too long" in n["message"]]
+    op.until("the error as a notification", notified, timeout=90, every=0.2)
+
+    # --- the card holds the job as robox-cli would have stored it
+    op.call("POST", "/api/connection", {"command": "disconnect"})
+    op.until("Offline", lambda: op.state().startswith("Offline"), timeout=30)
+    subprocess.run([sys.executable, "-m", "robox.cli", "sim", "stop", "--state", str(state)],
+                   env=env, check=True, capture_output=True, timeout=60)
+    stored = tmp_path / "stored.gcode"
+    subprocess.run([sys.executable, "-m", "robox.cli", "sdcard", "get",
+                    str(state / "sdcard.img"), card_id, "-o", str(stored)],
+                   env=env, check=True, capture_output=True, timeout=60)
+    assert stored.read_bytes() == expected
