@@ -25,6 +25,7 @@ import json
 import os
 import re
 import time
+from collections import Counter
 from pathlib import Path
 
 from robox.fileio import write_atomically
@@ -66,11 +67,12 @@ def record(unique_id: str, file_id: str, size: int, lines: int | None, job: bool
 def describe(listed: list[str], known: dict[str, dict]) -> list[dict]:
     """The printer's list (oldest first), each copy with what is known of it."""
     last = {name: i for i, name in enumerate(listed)}
+    copies = Counter(listed)
     out = []
     for i, name in enumerate(listed):
         entry = known.get(name, {})
         out.append({"id": name, "newest": last[name] == i,
-                    "copies": listed.count(name),
+                    "copies": copies[name],
                     "size": entry.get("size"), "lines": entry.get("lines"),
                     "job": entry.get("job")})
     return out
