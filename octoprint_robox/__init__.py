@@ -116,7 +116,7 @@ class RoboxPlugin:
             started(filename, shown(remote))
             try:
                 with prepared, open(job.path, "rb") as source:
-                    link.upload(source, remote, job.lines, ready=ready)
+                    link.upload(source, remote, job.lines, ready=ready, sha1=job.sha1)
             except Exception as exc:
                 self._log.exception("upload of %s to the Robox failed", filename)
                 if told:

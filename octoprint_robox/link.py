@@ -299,7 +299,8 @@ class RoboxLink:
         """Say `message` as an OctoPrint notification."""
         self._say(f"//action:notification Robox: {message}")
 
-    def upload(self, source, file_id: str, lines: int, progress=None, ready=None) -> None:
+    def upload(self, source, file_id: str, lines: int, progress=None, ready=None,
+               sha1: str | None = None) -> None:
         """Store `source` on the card as job `file_id`. `ready` is called once it can
         print (more than one chunk stored): OctoPrint then selects and starts it while
         the rest uploads, and the upload resumes the job whenever it catches up."""
@@ -320,4 +321,4 @@ class RoboxLink:
         finally:
             self._uploading = None
         with contextlib.suppress(RoboxError, OSError):
-            catalogue.record(self.printer.unique_id(), file_id, size, lines, True)
+            catalogue.record(self.printer.unique_id(), file_id, size, lines, True, sha1)

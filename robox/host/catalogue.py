@@ -12,7 +12,8 @@ The catalogue is one JSON file per printer, named by its unique ID, under
     {"files": {"<id>": {"size": 12345, "lines": 678, "job": true,
                         "sha1": "<hex>", "stored": "<ISO time>"}}}
 
-Every upload records its file before its first chunk. `describe()` joins the
+An upload is recorded once its last chunk is acknowledged (`robox-cli send-job`,
+the OctoPrint plugin). `describe()` joins the
 printer's list with it: each copy, which copy is the newest (the last listed,
 the one a run by id starts), and size, lines and job flag where known. A
 catalogue that cannot be read counts as empty; it is written by temporary file

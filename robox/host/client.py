@@ -355,10 +355,11 @@ class Printer:
         the start once the bed is clear).
 
         `ready` is called once the job could start (more than one chunk stored, or the
-        whole file): with `run` False and `follow`, another party starts it then (a host
-        such as OctoPrint, with its own run command), and the upload still resumes the
-        job whenever it catches up, except while `held()` says the job was paused on
-        purpose (a pause at a catch-up line looks the same). Returns what happened."""
+        whole file; not on a resumed upload whose job already runs): with `run` False
+        and `follow`, another party starts it then (a host such as OctoPrint, with its
+        own run command), and the upload still resumes the job whenever it catches up,
+        except while `held()` says the job was paused on purpose (a pause at a
+        catch-up line looks the same). Returns what happened."""
         source = io.BytesIO(data) if isinstance(data, bytes | bytearray) else data
         size = source.seek(0, io.SEEK_END)
         stored = make_id(file_id)
@@ -380,7 +381,8 @@ class Printer:
             self.ack((b"\x97" if job else b"\x90") + stored, f"start {name}")
         # a job whose run command was lost with the link is not running yet: ask
         started = resume and not restarted and first > 1 and self.status().job == name
-        watch = job and (run or follow)
+        start = job and run  # this call runs the job; `watch`: it resumes catch-ups
+        watch = start or (job and follow)
         noticed = set()
 
         def tell(message: str) -> None:
@@ -401,7 +403,7 @@ class Printer:
             if progress:
                 progress((sequence + 1) * CHUNK, size)
             if not started and sequence >= 1:
-                if watch and run:
+                if start:
                     self.run_job(name)
                 started = True
                 if ready is not None:
@@ -413,14 +415,14 @@ class Printer:
         if progress:
             progress(size, size)
         if not started:
-            if watch and run:
+            if start:
                 self.run_job(name)
             if ready is not None:
                 ready()
         elif watch and not (held and held()):
             # a pause made while the last chunks were on their way stays until resumed
             self.resume_if_caught_up(name, caught_up_at, tell)
-        return Sent(first, restarted, job and run)
+        return Sent(first, restarted, start)
 
     # ---------------------------------------------------- update firmware
     def update_firmware(self, image: bytes, file_id: str = "robox_firmware",
