@@ -60,11 +60,26 @@ def _usb_devices():
         raise NoPrinter("no USB backend: install libusb (Debian: libusb-1.0-0)") from None
 
 
-def _open_usb(device, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Printer:
+def _connect(transport, timeout_ms: int, idle=None, take_over: bool = False) -> Printer:
+    """A `Printer` on `transport` (closed again if the printer cannot be reached).
+    `take_over`: a text host's unfinished line is ended first (`robox.host.textmode`)."""
+    try:
+        if take_over:
+            from robox.host.textmode import take_over as taking_over
+
+            return taking_over(transport, timeout_ms, idle)
+        return Printer(transport, timeout_ms, idle=idle)
+    except BaseException:
+        transport.close()
+        raise
+
+
+def _open_usb(device, timeout_ms: int = DEFAULT_TIMEOUT_MS, take_over: bool = False
+              ) -> Printer:
     import usb.core
 
     try:
-        return Printer(UsbTransport(device), timeout_ms)
+        return _connect(UsbTransport(device), timeout_ms, take_over=take_over)
     except usb.core.USBError as exc:
         if exc.errno in (errno.EACCES, errno.EPERM):
             raise PermissionDenied(permission_hint()) from None
@@ -83,15 +98,16 @@ def list_printers() -> list[Attached]:
     return found
 
 
-def _select_usb(prefix: str | None, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Printer:
+def _select_usb(prefix: str | None, timeout_ms: int = DEFAULT_TIMEOUT_MS,
+                take_over: bool = False) -> Printer:
     devices = _usb_devices()
     if not devices:
         raise NoPrinter("no Robox is attached over USB (VID 16D0, PID 081B)")
     if prefix is None and len(devices) == 1:
-        return _open_usb(devices[0], timeout_ms)
+        return _open_usb(devices[0], timeout_ms, take_over)
     matches, ids = [], []
     for device in devices:
-        printer = _open_usb(device, timeout_ms)
+        printer = _open_usb(device, timeout_ms, take_over)
         unique = printer.unique_id()
         ids.append(unique)
         if prefix is not None and unique.startswith(prefix):
@@ -136,13 +152,14 @@ def _sim(directory: Path, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Iterator[Prin
         virtual.close()
 
 
-def _served(directory: Path, timeout_ms: int, announce=None) -> Printer:
+def _served(directory: Path, timeout_ms: int, announce=None, take_over: bool = False
+            ) -> Printer:
     """The printer served for `directory` (started in the background if need be)."""
     from robox.sim import served
 
     record = served.ensure(directory, announce)
-    printer = Printer(SerialTransport(record["pty"]), timeout_ms,
-                      idle=lambda seconds: time.sleep(min(seconds, SERVED_POLL_S)))
+    printer = _connect(SerialTransport(record["pty"]), timeout_ms,
+                       lambda seconds: time.sleep(min(seconds, SERVED_POLL_S)), take_over)
     printer.served = record
     return printer
 
@@ -153,10 +170,12 @@ def _started(record: dict) -> None:
 
 
 @contextlib.contextmanager
-def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000
-                 ) -> Iterator[Printer]:
+def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000,
+                 take_over: bool = False) -> Iterator[Printer]:
     """The printer chosen by `spec` (default: $ROBOX_DEVICE, else `usb`); a reply not
-    begun within `timeout_s` is an error (NoReply)."""
+    begun within `timeout_s` is an error (NoReply). With `take_over`, a printer a text
+    host left in the middle of a line is taken over (`robox.host.textmode.take_over`)
+    instead of refused."""
     timeout_ms = max(1, round(timeout_s * 1000))
     spec = spec or os.environ.get(ENVIRONMENT) or "usb"
     kind, _, rest = spec.partition(":")
@@ -168,13 +187,13 @@ def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000
             with _sim(directory, timeout_ms) as printer:
                 yield printer
             return
-        printer = _served(directory, timeout_ms, _started)
+        printer = _served(directory, timeout_ms, _started, take_over)
     elif kind == "usb":
-        printer = _select_usb(rest or None, timeout_ms)
+        printer = _select_usb(rest or None, timeout_ms, take_over)
     elif kind == "serial":
         if not rest:
             raise UsageError("serial needs a path: --device serial:/dev/ttyACM0")
-        printer = Printer(SerialTransport(rest), timeout_ms)
+        printer = _connect(SerialTransport(rest), timeout_ms, take_over=take_over)
     else:
         raise UsageError(f"unknown device {spec!r}: use usb, usb:ID, serial:PATH, sim, "
                          "sim:DIR, sim-once or sim-once:DIR")

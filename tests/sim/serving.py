@@ -7,11 +7,13 @@ import sys
 
 
 @contextlib.contextmanager
-def served(state):
-    """Yields the pty path; on exit sends SIGTERM and checks a clean stop."""
+def served(state, speed: float | None = None):
+    """Yields the pty path; on exit sends SIGTERM and checks a clean stop. `speed`: the
+    clock paced to the wall's (1 = real time), else as fast as the work needs."""
+    pace = ["--speed", str(speed)] if speed is not None else []
     proc = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
-                             str(state)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                             str(state), *pace], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     try:
         yield proc.stdout.readline().strip()
     finally:
