@@ -8,11 +8,18 @@ Two ways OctoPrint reaches a Robox, both offered by this plugin:
   robox's own client. Temperatures come under their names (tool0 = nozzle 0,
   tool1 = nozzle 1, bed, chamber = ambient), uploads to the printer's card print
   while they upload, jobs on the card are started, followed, paused, resumed and
-  cancelled, and the printer's errors appear as OctoPrint notifications. A printer
-  left in text mode by another host is reset into Robox mode on connecting.
-- **The plain serial port** (/dev/ttyACM*, or a virtual printer's pty) in
-  Pronterface mode: the plugin renames the Robox's M105 fields, whose `S:` is
-  nozzle 0 and `T:` nozzle 1, so OctoPrint does not show nozzle 1 as tool 0.
+  cancelled, and the printer's errors appear as OctoPrint notifications. A printer a
+  text host left in the middle of a line is taken over (the line is ended).
+- **The plain serial port** (/dev/ttyACM*, or a virtual printer's pty) in text
+  (Pronterface) mode. A Robox stays in Robox mode, deaf to text, from the first
+  frame a host sends it until it is reset; so when OctoPrint connects to a Robox's
+  port, the plugin first hands the printer over to text
+  (`robox.host.textmode.hand_to_text_host`): an idle printer is reset and OctoPrint
+  opens the port once it answers text; a printer with a job on is not reset (that
+  would end the job) and OctoPrint is connected to it through the Robox link
+  instead, following the job. On the text port the plugin renames the Robox's M105
+  fields (`S:` is nozzle 0, `T:` nozzle 1) and writes OctoPrint's tool temperatures
+  in the Robox's words.
 """
 
 from __future__ import annotations
@@ -39,20 +46,47 @@ class RoboxPlugin:
         from robox.sim.served import list_served
 
         names = [f"{PREFIX}usb", f"{PREFIX}sim"]
-        names += [f"{PREFIX}sim:{served['state']}" for served in list_served()]
+        served = list_served()
+        names += [f"{PREFIX}sim:{one['state']}" for one in served]
+        names += [one["pty"] for one in served]  # a virtual printer's plain (text) port
         return [n for n in names if n not in candidates]
 
     def serial_factory(self, comm_instance, port, baudrate, read_timeout, *args, **kwargs):
-        if not port or not port.startswith(PREFIX):
+        if not port or port == "AUTO":
             return None
+        if not port.startswith(PREFIX):
+            return self._plain_port(port, float(read_timeout))
         from octoprint_robox.link import RoboxLink
         from robox.host.devices import open_printer
 
         spec = port[len(PREFIX):]
         stack = contextlib.ExitStack()
-        printer = stack.enter_context(open_printer(spec))
-        _into_robox_mode(printer)
+        printer = stack.enter_context(open_printer(spec, take_over=True))
         link = RoboxLink(printer, float(read_timeout), closer=stack.close, port=port)
+        self._current = link
+        return link
+
+    def _plain_port(self, port: str, read_timeout: float):
+        """A Robox's own serial port, handed over to text before OctoPrint opens it
+        (None: OctoPrint opens it itself), or, when a job keeps the printer in Robox
+        mode, the Robox link to it."""
+        from octoprint_robox.link import RoboxLink
+        from robox.host.textmode import hand_to_text_host, is_robox_port
+
+        self._current = None
+        if not is_robox_port(port):
+            return None  # another printer: nothing to do
+        printer = hand_to_text_host(port)
+        if printer is None:
+            self._log.info("%s: the Robox answers text", port)
+            return None
+        job = printer.status().job
+        self._log.info("%s: the Robox is busy in Robox mode (job %s): connected through "
+                       "the Robox link", port, job)
+        link = RoboxLink(printer, read_timeout, closer=printer.transport.close, port=port)
+        link.notify(f"{'job ' + job if job else 'a command'} is under way in Robox mode, "
+                    "which only a reset leaves: OctoPrint follows it through the Robox "
+                    "link. Reconnect once the printer is idle for the text port.")
         self._current = link
         return link
 
@@ -126,25 +160,6 @@ class RoboxPlugin:
 
         threading.Thread(target=run, name="robox-upload", daemon=True).start()
         return shown(remote)
-
-
-def _into_robox_mode(printer) -> None:
-    """A printer a text host left mid-line takes frames as more of that line and
-    answers in text: ending the line (a line end) and letting its answers drain
-    brings it back to frames."""
-    from robox.host.client import ProtocolError
-    from robox.host.transport import NoReply
-
-    try:
-        printer.status()
-        return
-    except ProtocolError:
-        pass
-    printer.transport.write(b"\n")
-    with contextlib.suppress(NoReply):
-        while printer.transport.read(64, 300):
-            pass
-    printer.status()
 
 
 __plugin_name__ = "Robox"

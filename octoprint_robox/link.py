@@ -14,7 +14,10 @@ doing what the line asks through the client:
   by id; a file selected and started is run with 0x94, paused and resumed with
   0x98, cancelled (OctoPrint's M25, M27, M26 S0) with 0xff; `M27` reports the job's
   line against the lines the file has, when the link uploaded it (sizes are not
-  on the wire). When the job ends, `Done printing file`.
+  on the wire). When the job ends, `Done printing file`. A job found printing when
+  OctoPrint connects (started by another host, or before a reconnection) is told
+  after the card's list as a file selected and a position past its start, which
+  OctoPrint takes for a print started at the printer: it shows and follows it.
 - Any other line is executed by the printer (0x95) and answered with its reply.
 - Errors the printer raises (0xb3, asked on every temperature poll, which also
   keeps the printer counting a host as connected) are said as
@@ -124,11 +127,20 @@ class RoboxLink:
         self._lines: dict[str, int] = {}    # file id -> lines, where known
         self._uploading: str | None = None  # the file this link is storing now
         self._held = False  # paused by OctoPrint: an upload's catch-up resume leaves it
+        self._reported = 0  # the last position told to OctoPrint for the selected job
         with contextlib.suppress(RoboxError):
             known = catalogue.load(printer.unique_id())
             self._lines = {k: v["lines"] for k, v in known.items()
                            if isinstance(v.get("lines"), int)}
         self._closed = False
+        self._announce: list[str] = []  # a job found printing, told after the card's list
+        with contextlib.suppress(RoboxError):
+            status = printer.status()
+            if status.job is not None:
+                self._printing = self._selected = status.job  # followed to its end
+                self._announce = self._opened(status.job)
+                if status.line > 0 and status.line != self._lines.get(status.job):
+                    self._announce.append(self._position(status))
         exchange = printer.transact
 
         def one_at_a_time(frame: bytes) -> bytes:
@@ -228,8 +240,29 @@ class RoboxLink:
 
     def _M20(self, line: str) -> list[str]:
         names = self._card_files()
+        # a job already printing when OctoPrint connected: told as a file selected (it
+        # was, by someone) and a position past its start, which OctoPrint takes for a
+        # print started at the printer, and follows
+        announce, self._announce = self._announce, []
         return ["Begin file list", *(f"{shown(n)} {self._lines.get(n, 0)}" for n in names),
-                "End file list", "ok"]
+                "End file list", *announce, "ok"]
+
+    def _opened(self, name: str) -> list[str]:
+        return [f"File opened: {shown(name)} Size: {self._lines.get(name, 0)}",
+                "File selected"]
+
+    def _position(self, status) -> str:
+        """`SD printing byte` for the job's line. While OctoPrint has it paused, the
+        position it last heard: OctoPrint polls a paused card print and takes a
+        position that has moved on for a print restarted at the printer, and a Robox
+        finishes the moves under way before it stands still."""
+        total = self._lines.get(status.job, 0)
+        line = max(status.line, 1) if not total else min(status.line, total)
+        if self._held:
+            line = self._reported
+        self._reported = line
+        # a size unknown is told as 0: a position with no percentage
+        return f"SD printing byte {line}/{total}"
 
     def _M23(self, line: str) -> list[str]:
         asked = line.split(None, 1)[1].strip() if " " in line else ""
@@ -237,8 +270,8 @@ class RoboxLink:
         if name not in self._card_files():
             return [f"open failed, File: {asked}.", "ok"]
         self._selected = name
-        return [f"File opened: {shown(name)} Size: {self._lines.get(name, 0)}",
-                "File selected", "ok"]
+        self._reported = 0
+        return [*self._opened(name), "ok"]
 
     def _M24(self, line: str) -> list[str]:
         status = self.printer.status()
@@ -248,6 +281,7 @@ class RoboxLink:
         elif status.job is None and self._selected:
             self.printer.run_job(self._selected)
             self._printing = self._selected
+            self._reported = 0
         elif status.job is not None:
             self._printing = status.job  # already printing: followed to its end
         return ["ok"]
@@ -269,10 +303,7 @@ class RoboxLink:
         status = self.printer.status()
         if status.job is None:
             return ["Not SD printing", "ok"]
-        total = self._lines.get(status.job, 0)
-        if not total:  # unknown: a position with no size (OctoPrint shows no percentage)
-            return [f"SD printing byte {max(status.line, 1)}/0", "ok"]
-        return [f"SD printing byte {min(status.line, total)}/{total}", "ok"]
+        return [self._position(status), "ok"]
 
     # ------------------------------------------------------------- background
     def _errors(self) -> list[str]:

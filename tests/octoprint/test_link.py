@@ -247,3 +247,91 @@ def test_octoprints_card_upload_stores_the_job_under_send_jobs_id_and_prints_it(
     link.close()
     CliRunner().invoke(cli, ["sim", "stop", "--state", str(link.state)])
     assert card_images.get_file(link.state / "sdcard.img", expected) == JOB
+
+
+def test_a_job_printing_when_octoprint_connects_is_shown_and_followed(link):
+    """OctoPrint takes a file selected with no M23 of its own, then a position past its
+    start, for a print started at the printer (comm.py's external SD print)."""
+    link.printer.send_file(io.BytesIO(JOB), "running", run=True)
+    lines = JOB.count(b"\r")
+    for _ in range(400):
+        if link.printer.status().line > 0:
+            break
+        time.sleep(0.02)
+    from robox.host import catalogue
+
+    catalogue.record(link.printer.unique_id(), "running", len(JOB), lines, True, None)
+    joining = RoboxLink(link.printer, 0.2)  # OctoPrint connecting while it prints
+    assert joining.readline() == b"start\n"
+    listed = say(joining, "M20")
+    at = listed.index("End file list")
+    opened, selected, position, ok = listed[at + 1:]
+    assert opened == f"File opened: running.gco Size: {lines}" and selected == "File selected"
+    current, total = map(int, position.removeprefix("SD printing byte ").split("/"))
+    assert 0 < current < total == lines and ok == "ok"
+    assert say(joining, "M20")[-2:] == ["End file list", "ok"]  # told once
+    joining.printer.abort()
+    heard = []
+    deadline = time.monotonic() + 60
+    while "Done printing file" not in heard:  # followed to its end
+        assert time.monotonic() < deadline, heard
+        heard += say(joining, "M105")
+        line = joining.readline().decode().strip()
+        if line:
+            heard.append(line)
+
+
+def test_octoprint_on_a_robox_port_left_in_robox_mode_gets_it_back_in_text(
+        tmp_path, monkeypatch):
+    from tests.host.test_textmode import heard, into_robox_mode
+    from tests.sim import serving
+
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "runtime"))
+    plugin = RoboxPlugin()
+    with serving.served(tmp_path / "printer", speed=1) as pty:
+        assert pty in plugin.port_names([])  # offered beside the robox: ports
+        into_robox_mode(pty)
+        assert heard(pty, b"M105\n") == b""  # deaf to OctoPrint's lines
+        assert plugin.serial_factory(None, pty, 115200, 2.0) is None  # OctoPrint opens it
+        assert heard(pty, b"M105\n").endswith(b"ok\r\n")
+        assert plugin.serial_factory(None, "/dev/null", 115200, 2.0) is None  # not a Robox
+
+        with open_printer(f"serial:{pty}") as printer:  # a job in Robox mode
+            printer.send_file(io.BytesIO(JOB), "followed", run=True)
+        link = plugin.serial_factory(None, pty, 115200, 0.2)
+        try:
+            assert isinstance(link, RoboxLink) and plugin._current is link
+            told = [link.readline().decode().strip() for _ in range(2)]
+            assert told[0] == "start"
+            assert told[1].startswith("//action:notification Robox: job followed is under "
+                                      "way in Robox mode")
+            assert link.printer.status().pause == "running"
+            assert "File opened: followed.gco Size: 0" in say(link, "M20")
+            link.printer.abort()
+        finally:
+            link.close()
+
+
+def test_a_paused_print_reports_the_position_octoprint_last_heard(link):
+    """OctoPrint polls M27 while a card print is paused and takes a position past the
+    one it last heard for a print restarted at the printer (it would leave Paused); a
+    Robox finishes the line under way, and the link says the old position until the
+    resume."""
+    link.printer.send_file(io.BytesIO(JOB), "partC", run=False)
+    say(link, "M23 partC.gco")
+    say(link, "M24")
+    deadline = time.monotonic() + 30
+    while link.printer.status().line < 3:
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+    told = say(link, "M27")[0]
+    while link.printer.status().line < int(told.split()[-1].split("/")[0]) + 3:
+        assert time.monotonic() < deadline  # the printer moves on, unheard
+        time.sleep(0.02)
+    assert say(link, "M25") == ["ok"]
+    assert link.printer.status().line > int(told.split()[-1].split("/")[0])
+    assert say(link, "M27")[0] == told
+    assert say(link, "M24") == ["ok"]
+    resumed = say(link, "M27")[0]
+    assert int(resumed.split()[-1].split("/")[0]) > int(told.split()[-1].split("/")[0])
+    link.printer.abort()

@@ -240,3 +240,65 @@ def test_octoprint_drives_a_robox(rig, tmp_path):
                     str(state / "sdcard.img"), card_id, "-o", str(stored)],
                    env=env, check=True, capture_output=True, timeout=60)
     assert stored.read_bytes() == expected
+
+
+def test_octoprint_on_the_plain_port_of_a_robox_left_in_robox_mode(rig, tmp_path):
+    """A Robox a host left in Robox mode answers no text: OctoPrint connecting to its
+    own serial port gets it back in text (an idle printer is reset), or, while a job
+    keeps it in Robox mode, is connected through the Robox link and follows the job."""
+    op, _, env, base = rig
+    state = base / "plain-printer"
+    cli = [sys.executable, "-m", "robox.cli"]
+    subprocess.run([*cli, "sim", "serve", "--detach", "--speed", "10", "--state", str(state)],
+                   env=env, check=True, capture_output=True, timeout=60)
+    try:
+        pty = json.loads(subprocess.run([*cli, "sim", "status", "--json", "--state",
+                                         str(state)], env=env, check=True,
+                                        capture_output=True, timeout=60).stdout)["pty"]
+        device = ["--device", f"sim:{state}"]
+        subprocess.run([*cli, *device, "status"], env=env, check=True, capture_output=True,
+                       timeout=60)  # frames: Robox mode from now until a reset
+        assert pty in op.call("GET", "/api/connection")["options"]["ports"]
+
+        # --- idle: OctoPrint talks text to it, with the Robox's temperatures renamed
+        op.call("POST", "/api/connection", {"command": "connect", "port": pty,
+                                            "baudrate": 115200})
+        op.until("Operational on the text port", lambda: op.state() == "Operational")
+        op.call("PATCH", "/api/printerprofiles/_default",
+                {"profile": {"heatedChamber": True, "extruder": {"count": 2}}})
+        op.call("POST", "/api/printer/tool", {"command": "target", "targets": {"tool0": 150}})
+
+        def heating():
+            t = op.call("GET", "/api/printer").get("temperature", {})
+            if {"tool0", "bed", "chamber"} <= t.keys() and t["tool0"]["actual"] > 60:
+                return t
+            return None
+        t = op.until("nozzle 0 heating as tool 0", heating, timeout=60, every=0.2)
+        assert t.get("tool1", {}).get("actual", 0) < 40 and t["bed"]["actual"] < 40
+        op.call("POST", "/api/printer/tool", {"command": "target", "targets": {"tool0": 0}})
+        op.call("POST", "/api/connection", {"command": "disconnect"})
+        op.until("Offline", lambda: op.state().startswith("Offline"), timeout=30)
+
+        # --- a job in Robox mode: not reset, followed through the Robox link
+        source = tmp_path / "followed.gcode"
+        source.write_text("G28 X Y\nG90\n" + "".join(  # slow moves: minutes of printing
+            f"G1 X{10 + i % 50} Y{10 + (i * 7) % 50} F300\n" for i in range(2000)))
+        subprocess.run([*cli, *device, "send-job", str(source), "--id", "followed"],
+                       env=env, check=True, capture_output=True, timeout=120)
+        op.call("POST", "/api/connection", {"command": "connect", "port": pty,
+                                            "baudrate": 115200})
+        op.until("printing the job it found", lambda: op.state().startswith("Printing"),
+                 timeout=60, every=0.1)
+        assert op.call("GET", "/api/job")["job"]["file"]["name"] == "followed.gco"
+
+        def told():
+            notes = op.call("GET", "/api/plugin/action_command_notification")["notifications"]
+            return [n for n in notes if "under way in Robox mode" in n["message"]]
+        op.until("why it stays in Robox mode", told, timeout=30, every=0.2)
+        op.call("POST", "/api/job", {"command": "cancel"})
+        op.until("Operational after cancel", lambda: op.state() == "Operational", timeout=60)
+        op.call("POST", "/api/connection", {"command": "disconnect"})
+        op.until("Offline", lambda: op.state().startswith("Offline"), timeout=30)
+    finally:
+        subprocess.run([*cli, "sim", "stop", "--state", str(state)], env=env,
+                       capture_output=True, timeout=60)
