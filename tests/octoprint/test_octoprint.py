@@ -99,6 +99,19 @@ class OctoPrint:
     def state(self) -> str:
         return self.call("GET", "/api/job")["state"]
 
+    def connect(self, port: str) -> None:
+        """Connect to `port`, wait until Operational, and show two tools and the
+        chamber (the Robox's ambient)."""
+        self.call("POST", "/api/connection", {"command": "connect", "port": port,
+                                              "baudrate": 115200})
+        self.until(f"Operational on {port}", lambda: self.state() == "Operational")
+        self.call("PATCH", "/api/printerprofiles/_default",
+                  {"profile": {"heatedChamber": True, "extruder": {"count": 2}}})
+
+    def disconnect(self) -> None:
+        self.call("POST", "/api/connection", {"command": "disconnect"})
+        self.until("Offline", lambda: self.state().startswith("Offline"), timeout=30)
+
 
 def _free_port() -> int:
     with socket.socket() as s:
@@ -172,11 +185,7 @@ def test_octoprint_drives_a_robox(rig, tmp_path):
     ports = op.call("GET", "/api/connection")["options"]["ports"]
     port = f"robox:sim:{state}"
     assert port in ports, ports
-    op.call("POST", "/api/connection", {"command": "connect", "port": port,
-                                        "baudrate": 115200})
-    op.until("Operational", lambda: op.state() == "Operational")
-    op.call("PATCH", "/api/printerprofiles/_default",
-            {"profile": {"heatedChamber": True, "extruder": {"count": 2}}})
+    op.connect(port)
 
     # --- temperatures under OctoPrint's names; tool 0's target reaches nozzle 0 (the
     # virtual head is single-material: its nozzle 1 has no heater to set)
@@ -231,8 +240,7 @@ def test_octoprint_drives_a_robox(rig, tmp_path):
     op.until("the error as a notification", notified, timeout=90, every=0.2)
 
     # --- the card holds the job as robox-cli would have stored it
-    op.call("POST", "/api/connection", {"command": "disconnect"})
-    op.until("Offline", lambda: op.state().startswith("Offline"), timeout=30)
+    op.disconnect()
     subprocess.run([sys.executable, "-m", "robox.cli", "sim", "stop", "--state", str(state)],
                    env=env, check=True, capture_output=True, timeout=60)
     stored = tmp_path / "stored.gcode"
@@ -261,11 +269,7 @@ def test_octoprint_on_the_plain_port_of_a_robox_left_in_robox_mode(rig, tmp_path
         assert pty in op.call("GET", "/api/connection")["options"]["ports"]
 
         # --- idle: OctoPrint talks text to it, with the Robox's temperatures renamed
-        op.call("POST", "/api/connection", {"command": "connect", "port": pty,
-                                            "baudrate": 115200})
-        op.until("Operational on the text port", lambda: op.state() == "Operational")
-        op.call("PATCH", "/api/printerprofiles/_default",
-                {"profile": {"heatedChamber": True, "extruder": {"count": 2}}})
+        op.connect(pty)
         op.call("POST", "/api/printer/tool", {"command": "target", "targets": {"tool0": 150}})
 
         def heating():
@@ -276,8 +280,7 @@ def test_octoprint_on_the_plain_port_of_a_robox_left_in_robox_mode(rig, tmp_path
         t = op.until("nozzle 0 heating as tool 0", heating, timeout=60, every=0.2)
         assert t.get("tool1", {}).get("actual", 0) < 40 and t["bed"]["actual"] < 40
         op.call("POST", "/api/printer/tool", {"command": "target", "targets": {"tool0": 0}})
-        op.call("POST", "/api/connection", {"command": "disconnect"})
-        op.until("Offline", lambda: op.state().startswith("Offline"), timeout=30)
+        op.disconnect()
 
         # --- a job in Robox mode: not reset, followed through the Robox link
         source = tmp_path / "followed.gcode"
@@ -297,8 +300,7 @@ def test_octoprint_on_the_plain_port_of_a_robox_left_in_robox_mode(rig, tmp_path
         op.until("why it stays in Robox mode", told, timeout=30, every=0.2)
         op.call("POST", "/api/job", {"command": "cancel"})
         op.until("Operational after cancel", lambda: op.state() == "Operational", timeout=60)
-        op.call("POST", "/api/connection", {"command": "disconnect"})
-        op.until("Offline", lambda: op.state().startswith("Offline"), timeout=30)
+        op.disconnect()
     finally:
         subprocess.run([*cli, "sim", "stop", "--state", str(state)], env=env,
                        capture_output=True, timeout=60)
