@@ -80,10 +80,10 @@ class RoboxPlugin:
         if printer is None:
             self._log.info("%s: the Robox answers text", port)
             return None
-        job = printer.status().job
+        link = RoboxLink(printer, read_timeout, closer=printer.transport.close, port=port)
+        job = link.following  # the link asked the printer's status as it began
         self._log.info("%s: the Robox is busy in Robox mode (job %s): connected through "
                        "the Robox link", port, job)
-        link = RoboxLink(printer, read_timeout, closer=printer.transport.close, port=port)
         link.notify(f"{'job ' + job if job else 'a command'} is under way in Robox mode, "
                     "which only a reset leaves: OctoPrint follows it through the Robox "
                     "link. Reconnect once the printer is idle for the text port.")

@@ -173,6 +173,11 @@ class RoboxLink:
         return b""
 
     @property
+    def following(self) -> str | None:
+        """The job this link follows to its end (found printing at connect, or started)."""
+        return self._printing
+
+    @property
     def closed(self) -> bool:
         return self._closed
 
