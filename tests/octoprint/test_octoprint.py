@@ -21,6 +21,7 @@ when that installation fails.
 from __future__ import annotations
 
 import contextlib
+import http.client
 import importlib.util
 import json
 import os
@@ -62,8 +63,15 @@ def octoprint_python(tmp_path_factory) -> str:
 
 
 class OctoPrint:
-    def __init__(self, url: str):
+    def __init__(self, url: str, logs: Path | None = None):
         self.url = url
+        self.logs = logs  # OctoPrint's log directory: its serial log is shown on a failure
+
+    def serial_log_tail(self, lines: int = 40) -> str:
+        log = self.logs / "serial.log" if self.logs else None
+        if log is None or not log.exists():
+            return ""
+        return "\n".join(log.read_text(errors="replace").splitlines()[-lines:])
 
     def call(self, method: str, path: str, body=None, raw: bytes | None = None,
              content_type: str = "application/json"):
@@ -94,7 +102,8 @@ class OctoPrint:
             if last:
                 return last
             time.sleep(every)
-        raise AssertionError(f"OctoPrint never showed {what} (last: {last!r})")
+        raise AssertionError(f"OctoPrint never showed {what} (last: {last!r}); its serial "
+                             f"log ends:\n{self.serial_log_tail()}")
 
     def state(self) -> str:
         return self.call("GET", "/api/job")["state"]
@@ -142,13 +151,15 @@ def rig(octoprint_python, tmp_path_factory):
                                    "--iknowwhatimdoing", "--basedir", str(home),
                                    "--host", "127.0.0.1", "--port", str(port)],
                                   env=env, stdout=log, stderr=subprocess.STDOUT)
-        op = OctoPrint(f"http://127.0.0.1:{port}")
+        op = OctoPrint(f"http://127.0.0.1:{port}", home / "logs")
         try:
             def up():
                 if server.poll() is not None:
                     log_text = (base / "octoprint.log").read_text()
                     raise AssertionError(f"OctoPrint exited: {log_text}")
-                with contextlib.suppress(OSError, urllib.error.URLError):
+                # while it starts, the port may refuse, or answer before OctoPrint does
+                with contextlib.suppress(OSError, urllib.error.URLError,
+                                         http.client.HTTPException, ValueError):
                     return op.call("GET", "/api/version")
                 return None
             op.until("its API", up, timeout=120, every=0.5)
