@@ -25,6 +25,7 @@ import http.client
 import importlib.util
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -37,6 +38,7 @@ import pytest
 
 from robox.formats.sdcard import default_id
 from robox.gcode import job_file
+from robox.locks import read_record
 
 REPO = Path(__file__).resolve().parents[2]
 KEY = "0123456789ABCDEF0123456789ABCDEF"
@@ -170,8 +172,7 @@ def rig(octoprint_python, tmp_path_factory):
                 server.wait(30)
             except subprocess.TimeoutExpired:
                 server.kill()
-            subprocess.run([*cli, "sim", "stop", "--state", str(state)], env=env,
-                           capture_output=True, timeout=60)
+            _stop(cli, state, env)
 
 
 def _job(lines: int) -> bytes:
@@ -268,9 +269,9 @@ def test_octoprint_on_the_plain_port_of_a_robox_left_in_robox_mode(rig, tmp_path
     op, _, env, base = rig
     state = base / "plain-printer"
     cli = [sys.executable, "-m", "robox.cli"]
-    subprocess.run([*cli, "sim", "serve", "--detach", "--speed", "10", "--state", str(state)],
-                   env=env, check=True, capture_output=True, timeout=60)
     try:
+        subprocess.run([*cli, "sim", "serve", "--detach", "--speed", "10", "--state",
+                        str(state)], env=env, check=True, capture_output=True, timeout=60)
         pty = json.loads(subprocess.run([*cli, "sim", "status", "--json", "--state",
                                          str(state)], env=env, check=True,
                                         capture_output=True, timeout=60).stdout)["pty"]
@@ -313,5 +314,16 @@ def test_octoprint_on_the_plain_port_of_a_robox_left_in_robox_mode(rig, tmp_path
         op.until("Operational after cancel", lambda: op.state() == "Operational", timeout=60)
         op.disconnect()
     finally:
+        _stop(cli, state, env)
+
+
+def _stop(cli: list[str], state: Path, env: dict) -> None:
+    """Switch the served printer off; one that does not stop is killed, so that no test
+    leaves a printer running."""
+    with contextlib.suppress(subprocess.SubprocessError):
         subprocess.run([*cli, "sim", "stop", "--state", str(state)], env=env,
                        capture_output=True, timeout=60)
+    record = read_record(state) if state.exists() else None
+    if record and record.get("pid"):
+        with contextlib.suppress(OSError):
+            os.kill(record["pid"], signal.SIGKILL)
