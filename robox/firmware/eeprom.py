@@ -111,6 +111,11 @@ class Eeproms:
 
     def maintain(self) -> None:
         self._maintain_chips()
+        self.after_steps()
+
+    def after_steps(self) -> None:
+        """The rest of a pass after the chips' steps: what appeared, the head's timeout
+        and the bookkeeping."""
         fw = self.firmware
         if fw is None:
             return
@@ -354,6 +359,82 @@ class Eeproms:
         """True unless a VALID EEPROM's chip may still differ from its RAM copy."""
         state = self.states[index]
         return state.status != Status.VALID or state.verified_banks >= 2
+
+    def all_quiet(self) -> bool:
+        return self.quiet(0) and self.quiet(1) and self.quiet(2)
+
+    def run_inert_passes(self, dt: float, most: int) -> int:
+        """Run up to `most` passes of `dt` (the clock moved on pass by pass) in which this
+        object's steps change nothing any other object looks at, and return how many ran.
+
+        A loading or verifying EEPROM takes one step a pass; while those steps are
+        acknowledged reads that neither end a bank nor find a byte to rewrite, they are
+        taken together at the end, as the reads they are. A settled
+        EEPROM's steps (one every QUIET_STEP_S) are taken at their own passes. The run
+        stops before any other step, so the next pass finds things as the passes one by
+        one would have left them."""
+        clock = self.clock
+        loading = []
+        settled = []
+        for state in self.states:
+            if state.status == Status.VALID and state.verified_banks >= 2:
+                settled.append(state)
+                continue
+            chip = self.bus.chip(state.index)
+            if chip is None:
+                if state.status == Status.NOT_PRESENT \
+                        and not (state.counter or state.working_bank or state.writing):
+                    continue  # an empty socket already given up (see _maintain_chips)
+                return 0
+            most = min(most, self._inert_steps(state, chip, clock.now + dt))
+            loading.append((state, chip))
+        done = 0
+        while done < most:
+            at = clock.now + dt
+            due = [state for state in settled if at - state.last_step >= QUIET_STEP_S]
+            if due and not all(self._inert_steps(state, self.bus.chip(state.index), at)
+                               for state in due):
+                break
+            clock.advance(dt)
+            done += 1
+            for state in due:
+                state.last_step = clock.now
+                self._step(state)
+        for state, chip in loading:
+            self._take_reads(state, chip, done)
+        return done
+
+    def _inert_steps(self, state: EepromState, chip, at: float) -> int:
+        """How many steps from a pass at `at` on are acknowledged reads that change
+        nothing but this EEPROM's place in its bank (a bank's last byte is left out: its
+        step loads or verifies the bank, which another object, or quiet(), sees)."""
+        if chip is None or state.writing or not chip.will_acknowledge(at):
+            return 0
+        n = BANK_SIZE - 1 - state.counter
+        if chip.faults.unplug_at is not None and chip.faults.unplug_at > chip.transactions:
+            n = min(n, chip.faults.unplug_at - chip.transactions - 1)
+        if state.status != Status.VALID or n <= 0:
+            return max(0, n)
+        address = self._address(state)
+        held = chip.peek_run(address, n)
+        want = state.buffer[state.counter : state.counter + n]
+        if held == want:
+            return n
+        return next(i for i in range(n) if held[i] != want[i])
+
+    def _take_reads(self, state: EepromState, chip, n: int) -> None:
+        """`n` inert steps of a loading or verifying EEPROM, the last at the clock's now."""
+        if n == 0:
+            return
+        data = chip.read_run(self._address(state), n)
+        now = self.clock.now
+        state.acked = True
+        state.last_ack = state.last_step = now
+        if state.status == Status.VALID:
+            state.counter += n
+        else:
+            state.buffer[state.counter : state.counter + n] = data
+            state.counter += n
 
     def quiet(self, index: EepromIndex) -> bool:
         """True when stepping this EEPROM now would change nothing but the time: it is

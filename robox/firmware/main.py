@@ -119,18 +119,20 @@ class Firmware:
 
     def busy(self) -> bool:
         """True when the next pass has work to do now (so the clock must not jump)."""
+        return self._busy_apart_from_eeproms() or not self.eeproms.all_quiet()
+
+    def _busy_apart_from_eeproms(self) -> bool:
         usb = self.hw.usb
         command = self.command
         line_ready = command.line is not None and command.waiting in (None, NEXT_PASS)
         return bool((usb.received and not command.deaf) or usb.arriving or line_ready
                     or self.heaters.conversion_ready
                     or command.pending_after_reply or self.job.runnable()
-                    or self.reset_requested or self.hours.due()
-                    or not all(self.eeproms.quiet(i) for i in range(3)))
+                    or self.reset_requested or self.hours.due())
 
     def next_step(self, limit: float | None = None) -> float:
         """How far the clock may move before the next pass (see `plan`)."""
-        step, passes = self.plan(limit)
+        step, passes = self.plan(limit, skip=False)
         if passes > 1:  # pragma: no cover - callers of next_step() get a single pass
             raise AssertionError("next_step() cannot skip passes")
         return step
@@ -143,8 +145,13 @@ class Firmware:
         waiting for room in the motion queue (or for motion to end), the step interrupts
         are run ahead to the moment that happens and the clock moves on to the first
         pass after it, as if every pass in between had looked and found nothing."""
-        if self.busy():
+        eeproms_only = False
+        if self._busy_apart_from_eeproms():
             return PASS_S, 1
+        if not self.eeproms.all_quiet():
+            if not skip or not self.motion.empty() or self.hw.machine.hand_busy():
+                return PASS_S, 1
+            eeproms_only = True
         now = self.clock.now
         events = [now + IDLE_STEP_S]
         kind = None
@@ -164,6 +171,8 @@ class Firmware:
         horizon = min(events)
         if limit is not None:
             horizon = min(horizon, now + limit)
+        if eeproms_only:  # passes in which only the EEPROMs step (see run_pass)
+            return PASS_S, max(1, int((horizon - now) / PASS_S + 1e-9))
         motion = self.motion
         if not motion.empty() or self.hw.machine.hand_busy():
             if not skip or not motion.can_run_ahead() or horizon - now < 2 * PASS_S:
@@ -184,6 +193,9 @@ class Firmware:
         """One pass of the loop after the clock moves on by `step` (default: as far as
         nothing is missed), `passes` times over (the passes between do nothing)."""
         dt = self.next_step() if step is None else step
+        if passes > 1 and not self.eeproms.all_quiet():
+            self._eeprom_passes(dt, passes - 1)
+            passes = 1
         self.clock.advance(dt, passes)
         self.hw.machine.advance(dt * passes)
         self.motion.catch_up()
@@ -192,6 +204,16 @@ class Firmware:
         self.hw.usb.frame()
         if self.reset_requested:
             self._reset()
+
+    def _eeprom_passes(self, dt: float, most: int) -> None:
+        """Up to `most` passes in which the EEPROM object is the only one with work
+        (Eeproms.run_inert_passes): the other objects would idle through them, so they
+        are skipped as in any other skipped pass; the caller runs the next pass whole."""
+        done = self.eeproms.run_inert_passes(dt, most)
+        if done:
+            self.hw.machine.advance(dt * done)
+            self.motion.catch_up()
+            self.eeproms.after_steps()
 
     def inside_commands(self) -> bool:
         """True while the command object runs a line that waits (a Pronterface line, a

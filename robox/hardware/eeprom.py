@@ -55,6 +55,23 @@ class EepromChip:
             return False
         return True
 
+    def will_acknowledge(self, at: float) -> bool:
+        """Whether the next transaction, made at time `at`, will be acknowledged."""
+        return self.plugged and self.faults.unplug_at != self.transactions + 1 \
+            and (self.clock is None or at >= self._busy_until)
+
+    def peek_run(self, address: int, n: int) -> bytes:
+        """`n` bytes from `address`, looked at without a transaction (for planning)."""
+        return bytes(self.data[(address + i) % CHIP_SIZE] for i in range(n)) \
+            if address + n > CHIP_SIZE else bytes(self.data[address : address + n])
+
+    def read_run(self, address: int, n: int) -> bytes:
+        """`n` single-byte reads from `address` on, all acknowledged (the caller made
+        sure: see will_acknowledge), as `n` calls of read() would count them."""
+        self.transactions += n
+        self.reads += n
+        return self.peek_run(address, n)
+
     def read(self, address: int) -> int | None:
         """One single-byte read; None when not acknowledged."""
         if not self._acknowledges():
