@@ -61,6 +61,10 @@ class Hardware:
 class Firmware:
     """The model of the printer's firmware, running on `Hardware`."""
 
+    #: Run light passes together (see _run_light_passes); off, every such pass runs whole
+    #: (the reference the tests compare with).
+    light_passes = True
+
     def __init__(self, hw: Hardware):
         self.hw = hw
         self.clock = hw.clock
@@ -119,13 +123,25 @@ class Firmware:
 
     def busy(self) -> bool:
         """True when the next pass has work to do now (so the clock must not jump)."""
-        return self._busy_apart_from_eeproms() or not self.eeproms.all_quiet()
+        return self._busy_apart_from_light() or self._light_work()
 
-    def _busy_apart_from_eeproms(self) -> bool:
+    def _light_work(self) -> bool:
+        """Work a light pass does (see _run_light_passes): an EEPROM stepping, or a packet
+        from the host crossing the bus while no job runs."""
+        return self._light_usb() or not self.eeproms.all_quiet()
+
+    def _light_usb(self) -> bool:
+        # While a job runs the hours counter adds up time pass by pass, and the command
+        # a transfer brings (a pause, say) acts before it in the pass that sees it: the
+        # passes before must have been counted whole, so they are not light.
+        return self.hw.usb.arriving and not self.job.running
+
+    def _busy_apart_from_light(self) -> bool:
         usb = self.hw.usb
         command = self.command
         line_ready = command.line is not None and command.waiting in (None, NEXT_PASS)
-        return bool((usb.received and not command.deaf) or usb.arriving or line_ready
+        return bool((usb.received and not command.deaf) or line_ready
+                    or (usb.arriving and self.job.running)
                     or self.heaters.conversion_ready
                     or command.pending_after_reply or self.job.runnable()
                     or self.reset_requested or self.hours.due())
@@ -145,13 +161,16 @@ class Firmware:
         waiting for room in the motion queue (or for motion to end), the step interrupts
         are run ahead to the moment that happens and the clock moves on to the first
         pass after it, as if every pass in between had looked and found nothing."""
-        eeproms_only = False
-        if self._busy_apart_from_eeproms():
+        light = False
+        if self._busy_apart_from_light():
             return PASS_S, 1
-        if not self.eeproms.all_quiet():
-            if not skip or not self.motion.empty() or self.hw.machine.hand_busy():
+        if self._light_work():
+            # a line part-way (waiting on a heater, say) looks again at every pass
+            if not self.light_passes or not skip or not self.motion.empty() \
+                    or self.hw.machine.hand_busy() \
+                    or self.job.current is not None or self.command.line is not None:
                 return PASS_S, 1
-            eeproms_only = True
+            light = True
         now = self.clock.now
         events = [now + IDLE_STEP_S]
         kind = None
@@ -171,8 +190,13 @@ class Firmware:
         horizon = min(events)
         if limit is not None:
             horizon = min(horizon, now + limit)
-        if eeproms_only:  # passes in which only the EEPROMs step (see run_pass)
-            return PASS_S, max(1, int((horizon - now) / PASS_S + 1e-9))
+        if light:  # light passes, then the pass that sees what they led to
+            # ending a pass short of the horizon: the passes that reach it are whole, so
+            # each object meets its moment at the pass it would one pass at a time
+            n = max(1, int((horizon - now) / PASS_S + 1e-9) - 1)
+            if self.hw.usb.arriving:
+                n = min(n, self.hw.usb.frames_to_land() + 1)
+            return PASS_S, n
         motion = self.motion
         if not motion.empty() or self.hw.machine.hand_busy():
             if not skip or not motion.can_run_ahead() or horizon - now < 2 * PASS_S:
@@ -193,8 +217,8 @@ class Firmware:
         """One pass of the loop after the clock moves on by `step` (default: as far as
         nothing is missed), `passes` times over (the passes between do nothing)."""
         dt = self.next_step() if step is None else step
-        if passes > 1 and not self.eeproms.all_quiet():
-            self._eeprom_passes(dt, passes - 1)
+        if passes > 1 and self._light_work():
+            self._run_light_passes(dt, passes - 1)
             passes = 1
         self.clock.advance(dt, passes)
         self.hw.machine.advance(dt * passes)
@@ -205,15 +229,30 @@ class Firmware:
         if self.reset_requested:
             self._reset()
 
-    def _eeprom_passes(self, dt: float, most: int) -> None:
-        """Up to `most` passes in which the EEPROM object is the only one with work
-        (Eeproms.run_inert_passes): the other objects would idle through them, so they
-        are skipped as in any other skipped pass; the caller runs the next pass whole."""
-        done = self.eeproms.run_inert_passes(dt, most)
+    def _run_light_passes(self, dt: float, most: int) -> None:
+        """Up to `most` light passes: passes in which the only work is an EEPROM's step
+        (Eeproms.run_inert_passes) or a packet from the host crossing the bus (the
+        command object sees a transfer only once it has landed whole). The other objects
+        would idle through them, so they are skipped as in any other skipped pass; they
+        end at the latest with the pass whose frame lands a transfer, and the caller runs
+        the next pass whole."""
+        usb, eeproms = self.hw.usb, self.eeproms
+        if usb.arriving:
+            most = min(most, usb.frames_to_land())
+        if eeproms.all_quiet():
+            self.clock.advance(dt, most)
+            done = most
+        else:
+            done = eeproms.run_inert_passes(dt, most)
         if done:
+            for _ in range(done):
+                usb.frame()
             self.hw.machine.advance(dt * done)
             self.motion.catch_up()
-            self.eeproms.after_steps()
+            eeproms.after_steps()
+            # the hours counter adds up time from pass to pass: brought up to now, so the
+            # next pass (which may start or pause a job before it) counts only its own
+            self.hours.maintain()
 
     def inside_commands(self) -> bool:
         """True while the command object runs a line that waits (a Pronterface line, a

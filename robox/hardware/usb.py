@@ -72,6 +72,11 @@ class UsbLink:
             self._rx += head[0]
             self._transfers.popleft()
 
+    def frames_to_land(self) -> int:
+        """How many more frames until the oldest transfer from the host has landed whole
+        (0: none is crossing)."""
+        return max(1, self._transfers[0][1]) if self._transfers else 0
+
     @property
     def arriving(self) -> bool:
         """A transfer from the host is still crossing the bus."""

@@ -1,0 +1,181 @@
+"""Light passes run together (Firmware._run_light_passes): passes whose only work is an
+EEPROM's step (Eeproms.run_inert_passes) or a packet from the host crossing the bus.
+What the chips, the card, the EEPROM object and a host see must be what running each
+such pass whole gives (`Firmware.light_passes = False`, the reference).
+
+Each case runs two printers from the same media with the same host steps, one each
+way, and compares every write reaching a chip or the card (address, bytes, simulated
+moment), the moment each EEPROM became VALID, every reply and the moment it was
+there, the moment every EEPROM fell quiet (what settle() waits for), and at that
+moment the chips' bytes and the EEPROM object's state. (Once quiet, a settled
+EEPROM's verify reads are taken at most every QUIET_STEP_S, in whichever passes run:
+from there on the two printers' read counters may differ, by design.)"""
+
+from dataclasses import replace
+
+import pytest
+
+from robox.formats.eeprom import BANK_ADDRESSES, BANK_SIZE, EepromIndex
+from robox.formats.sdcard import BLOCK_SIZE
+from robox.hardware.faults import EepromFaultPlan, PowerPlan
+from robox.sim.printer import Media, VirtualPrinter
+
+HEAD, REEL0 = EepromIndex.HEAD, EepromIndex.REEL0
+END_S = 2.5
+
+
+def fresh() -> Media:
+    return VirtualPrinter(card_blocks=64).media()
+
+
+def altered(media: Media, index: int, changes: dict[int, int]) -> Media:
+    chips = list(media.chips)
+    data = bytearray(chips[index])
+    for address, value in changes.items():
+        data[address] = value
+    chips[index] = bytes(data)
+    return replace(media, chips=tuple(chips))
+
+
+class Log(PowerPlan):
+    """Every write to a nonvolatile medium, with its moment."""
+
+    def __init__(self, printer: VirtualPrinter):
+        super().__init__()
+        self.printer = printer
+        hw = printer.hw
+        self.names = {id(c): f"chip{i}" for i, c in enumerate(hw.eeprom_bus.sockets) if c}
+        self.names[id(hw.card)] = "card"
+        self.events = []
+
+    def write(self, device, address, data):
+        self.events.append(("write", self.names.get(id(device)), address, bytes(data),
+                            round(self.printer.firmware.clock.now, 9)))
+        return super().write(device, address, data)
+
+
+def outcome(printer: VirtualPrinter) -> tuple:
+    fw = printer.firmware
+    states = [(s.status, s.counter, s.working_bank, s.verified_banks, s.writing,
+               bytes(s.buffer)) for s in fw.eeproms.states]
+    chips = [None if c is None else (bytes(c.data), c.writes, c.plugged)
+             for c in printer.hw.eeprom_bus.sockets]
+    return states, chips, fw.errors.bits
+
+
+def run(media: Media, light: bool, faults=None, frames=()) -> tuple:
+    p = VirtualPrinter(media=media)
+    fw = p.firmware
+    fw.light_passes = light
+    if faults:
+        faults(p)
+    log = Log(p)
+    p.supply(log)
+    fw.eeproms.on_valid.append(lambda i: log.events.append(
+        ("valid", int(i), round(fw.clock.now, 9))))
+    usb = p.usb
+    for frame in frames:  # a host's commands, each as soon as the last was answered
+        if frame is None:  # (or once the EEPROMs are quiet)
+            p.run_until(lambda: fw.eeproms.all_quiet(), END_S)
+            continue
+        usb.host_write(frame)
+        p.run_until(lambda: usb.reply_waiting > 0, 1.0, between_lines=False)
+        log.events.append(("reply", usb.host_read(4096), round(fw.clock.now, 9)))
+    p.run_until(lambda: fw.eeproms.all_quiet(), END_S)
+    quiet_at, state = round(fw.clock.now, 9), outcome(p)
+    p.run_until(lambda: False, END_S - fw.clock.now)
+    return log.events, quiet_at, state
+
+
+def unplug_reel_after(n: int):
+    def fault(p: VirtualPrinter) -> None:
+        p.hw.eeprom_bus.sockets[REEL0].faults = EepromFaultPlan(unplug_at=n)
+    return fault
+
+
+def upload(file_id: bytes, data: bytes) -> list[bytes]:
+    """The frames of a whole upload: start, 512-byte chunks, and the end."""
+    frames = [b"\x90" + file_id]
+    chunks = [data[i : i + BLOCK_SIZE] for i in range(0, len(data), BLOCK_SIZE)]
+    for n, chunk in enumerate(chunks[:-1]):
+        frames.append(b"\x91" + f"{n:08x}".encode() + chunk.ljust(BLOCK_SIZE, b"\0"))
+    last = chunks[-1]
+    frames.append(b"\x92" + f"{len(chunks) - 1:08x}{len(last):04x}".encode() + last)
+    return frames
+
+
+HOST = [b"\xb0", *upload(b"MACRO0000000003\0", bytes(range(256)) * 9), b"\xb6",
+        b"\x95" + b"0005M105\n", b"\x93", b"\xb0"]
+
+CASES = {
+    "both chips good": (lambda m: m, None, ()),
+    # bank 1 of the head differs in one byte: found while verifying, rewritten, read back
+    "head bank 1 differs": (lambda m: altered(m, HEAD, {BANK_ADDRESSES[1] + 40: 0x21}),
+                            None, ()),
+    # reel bank 0 fails its CRC: bank 1 is loaded, then bank 0 is rewritten whole
+    "reel bank 0 torn": (lambda m: altered(m, REEL0, {BANK_ADDRESSES[0] + 7: 0x7E,
+                                                      BANK_ADDRESSES[0] + 8: 0x01}), None, ()),
+    # a blank reel: no bank passes, it stays PRESENT and keeps reading
+    "reel blank": (lambda m: altered(m, REEL0, dict.fromkeys(range(512), 0xFF)), None, ()),
+    # the reel stops answering in the middle of its first bank, and again while verifying
+    "reel unplugged mid-load": (lambda m: m, unplug_reel_after(90), ()),
+    "reel unplugged mid-verify": (lambda m: m, unplug_reel_after(BANK_SIZE + 50), ()),
+    # a host uploading and asking while the chips load (packets crossing the bus, with
+    # EEPROM steps in the same passes), and the same once they have settled
+    "host while loading": (lambda m: m, None, HOST),
+    "host while rewriting": (lambda m: altered(m, HEAD, {BANK_ADDRESSES[1] + 40: 0x21}),
+                             None, HOST),
+    "host after settling": (lambda m: m, None, [None, *HOST]),
+    # a queued M109 S0 waits on the nozzle: the line looks again at the very next pass,
+    # the one in which the status request is still crossing (mixed session 231's bytes)
+    "a line waiting": (lambda m: m, None, [None, b"\x950012M109 S0 ; comment\r", b"\xb0"]),
+    # a job started and ended: the hours counter counts its passes from the one that
+    # started it (the run-job frame crossed in light passes), and writes them to flash
+    "a job's hours": (lambda m: m, None, [None, *upload(b"JOBAAAA000000001",
+                                                        b"G4 P200\n" * 3),
+                                          b"\x94JOBAAAA000000001", None, b"\xb6"]),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_light_passes_run_together_as_whole_passes(name):
+    make, faults, frames = CASES[name]
+    media = make(fresh())
+    together = run(media, True, faults, frames)
+    whole = run(media, False, faults, frames)
+    assert together[0] == whole[0]  # writes, VALID moments, replies and their moments
+    assert together[1] == whole[1]  # when every EEPROM fell quiet
+    assert together[2] == whole[2]  # chips, EEPROM object, error flags when quiet
+    if frames:
+        replies = [e for e in whole[0] if e[0] == "reply"]
+        assert len(replies) == len([f for f in frames if f]) and all(r[1] for r in replies)
+        if any(f and f[0] == 0x90 for f in frames):  # an upload: its blocks reached the card
+            assert any(e[0] == "write" and e[1] == "card" for e in whole[0])
+
+
+def test_light_passes_make_power_up_and_uploads_cheap():
+    """The point of it: loading and verifying both chips takes about 400 steps each, and
+    a 521-byte chunk crosses the bus in 9 frames; they now cost a few whole passes."""
+    counts = {}
+    for light in (True, False):
+        p = VirtualPrinter(media=fresh())
+        fw = p.firmware
+        fw.light_passes = light
+        passes = 0
+        real = fw.do_everything_else
+
+        def counted(real=real):
+            nonlocal passes
+            passes += 1
+            real()
+        fw.do_everything_else = counted
+        usb = p.usb
+        for frame in HOST:
+            usb.host_write(frame)
+            p.run_until(lambda usb=usb: usb.reply_waiting > 0, 1.0, between_lines=False)
+            usb.host_read(4096)
+        p.settle()
+        assert all(fw.eeproms.states[i].status.name == "VALID" for i in (HEAD, REEL0))
+        counts[light] = passes
+    assert counts[False] >= 2 * BANK_SIZE  # a bank loaded and one verified, pass by pass
+    assert counts[True] * 8 < counts[False], counts
