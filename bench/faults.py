@@ -42,11 +42,11 @@ def main() -> None:
 
     measure("card campaign (file system alone)", campaign.record, campaign.cases, card_check,
             2000 if quick else None)
-    builders = {}
+    judges = {}
 
     def printer_check(rec, case):
-        builder = builders.setdefault(id(rec), printer_campaign.MediaBuilder(rec))
-        return printer_campaign.check(rec, builder, case)
+        judge = judges.setdefault(id(rec), printer_campaign.Judge(rec))
+        return judge.check(case)
 
     rec, chosen = measure("printer campaign (print while uploading, whole printer)",
                           printer_campaign.record, printer_campaign.cases, printer_check,

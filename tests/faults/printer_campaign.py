@@ -16,7 +16,7 @@ or while the job reads its file leaves the same media as one right after the
 last write before it, so these cases cover every moment of the run.
 `replay(case_id)` runs a cut for real, from the top, through the PowerPlan.
 
-At every cut the survivor is judged (`check`): the card mounts with every file
+At every cut the survivor is judged (`check`, through a `Judge`): the card mounts with every file
 committed before the cut intact, the job either absent or whole, the last job
 and the nonvolatile bytes old or new; after power-up each EEPROM loads VALID
 holding one of the last two images the firmware was writing to it (so the
@@ -25,6 +25,19 @@ page holds its old or new text (torn by a cut during its own page write, which
 the firmware does not guard against, it still reads back as the page holds
 it); the image is intact; and `send_file(..., resume=True)` then stores the job
 byte-identical.
+
+Every survivor is powered up whole and its chips, flash and hours report are judged
+on it. Two judgements depend on the card alone, and are made once per distinct card
+(the `Judge` keeps them): the mount, and the upload sent again with resume. The
+upload is the command object's and the file system's, which own the card; on a
+printer freshly powered up, with no job, the only other thing that path sees is
+whether each EEPROM is there (the status report), so the EEPROMs' states are part of
+the key, with the blocks power-up wrote to the card (the mount's recovery).
+`test_survivors_that_share_an_upload_verdict_upload_alike` checks the premise: on
+survivors that share a key but differ in their EEPROMs, the upload leaves the same
+card. A survivor's card is named without hashing
+its bytes: by how many card writes it holds, and how the last one landed when the cut
+was one.
 """
 
 from __future__ import annotations
@@ -212,6 +225,20 @@ class MediaBuilder:
             self._apply(self.rec.writes[self.applied])
             self.applied += 1
 
+    def card_key(self, case: Case) -> tuple:
+        """Names the survivor's card: equal keys, equal card bytes."""
+        writes = self.rec.writes
+        held = self._card_writes_before(case.write)
+        if writes[case.write - 1].medium != "card":
+            return (held,)
+        return (held, case.mode, case.param)
+
+    def _card_writes_before(self, n: int) -> int:
+        counts = self.__dict__.setdefault("_card_counts", [0])
+        while len(counts) < n:
+            counts.append(counts[-1] + (self.rec.writes[len(counts) - 1].medium == "card"))
+        return counts[n - 1]
+
     def chip_byte(self, n: int, write: Write) -> int:
         self.advance_to(n - 1)
         return self.chips[write.medium][write.address]
@@ -289,10 +316,17 @@ def judge_card(rec: Recording, case: Case, state: State) -> list[str]:
     return problems
 
 
-def judge_printer(rec: Recording, case: Case, media: Media) -> list[str]:
-    """Power the survivor up, let it load, and judge its chips, flash and upload."""
+def judge_printer(rec: Recording, case: Case, media: Media, judge: Judge | None = None,
+                  card_key: tuple | None = None) -> list[str]:
+    """Power the survivor up, let it load, and judge its chips, flash and upload (the
+    upload's verdict shared through `judge` between survivors whose card and loaded
+    EEPROMs are the same, when `card_key` names the card)."""
     virtual = VirtualPrinter(media=media)
+    card = virtual.hw.card
+    powered_up = PowerPlan(log=[])  # what power-up wrote (the mount's recovery, say)
+    virtual.supply(powered_up)
     virtual.settle()
+    virtual.supply(None)
     fw = virtual.firmware
     problems = []
     for position, index in enumerate(CHIPS):
@@ -311,22 +345,53 @@ def judge_printer(rec: Recording, case: Case, media: Media) -> list[str]:
     torn = case.mode == "partial" and rec.writes[case.write - 1].medium == "flash"
     if page not in [before, *written[-1:]] and not torn:
         problems.append("the hours page holds neither its old nor its new text")
-    printer = connect(virtual)
-    if printer.transact(b"\xb6")[1:9] != bytes(b & 0x7F for b in page[:8]):
+    if virtual.transact(b"\xb6")[1:9] != bytes(b & 0x7F for b in page[:8]):
         problems.append("0xb6 does not report the hours page")
     if fw.errors.is_set(ErrorBit.FLASH_CHECKSUM):
         problems.append("FLASH_CHECKSUM after a cut that never touched the image")
+    key = None
+    if judge is not None and card_key is not None:
+        key = (card_key, tuple((block, data) for device, block, data in powered_up.log
+                               if device is card),
+               tuple(s.status for s in fw.eeproms.states))
+        if key in judge.uploads:
+            return problems + judge.uploads[key]
+    printer = connect(virtual)
     printer.clear_errors()
     sent = printer.send_file(JOB, JOB_ID, resume=True)
     stored = fw.file_system.read_committed(make_id(JOB_ID))
+    upload = []
     if not sent.restarted:
-        problems.append("after power-up the printer still reported the upload open")
+        upload.append("after power-up the printer still reported the upload open")
     if stored != JOB:
-        problems.append("the job sent again with resume is not stored byte-identical")
-    return problems
+        upload.append("the job sent again with resume is not stored byte-identical")
+    if key is not None:
+        judge.uploads[key] = upload
+    return problems + upload
+
+
+class Judge:
+    """Judges cut points one after another, keeping what depends on the card alone."""
+
+    def __init__(self, rec: Recording):
+        self.rec = rec
+        self.builder = MediaBuilder(rec)
+        self.cards: dict[tuple, State] = {}
+        self.uploads: dict[tuple, list[str]] = {}
+
+    def check(self, case: Case) -> list[str]:
+        media = self.builder.survivor(case)
+        card_key = self.builder.card_key(case)
+        state = self.cards.get(card_key)
+        if state is None:
+            state = self.cards[card_key] = files_of(media)
+        problems = judge_card(self.rec, case, state) + \
+            judge_printer(self.rec, case, media, self, card_key)
+        return [f"[{case.id}] {p}" for p in problems]
 
 
 def check(rec: Recording, builder: MediaBuilder, case: Case) -> list[str]:
+    """One cut point judged afresh, nothing shared with another."""
     media = builder.survivor(case)
     state = files_of(media)
     problems = judge_card(rec, case, state) + judge_printer(rec, case, media)

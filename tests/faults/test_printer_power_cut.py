@@ -47,13 +47,44 @@ def test_the_scenario_writes_every_medium_while_the_job_prints_and_uploads(rec):
 
 
 def test_every_write_cut_whole_or_torn_leaves_a_legal_printer(rec):
-    builder = campaign.MediaBuilder(rec)
+    judge = campaign.Judge(rec)
     problems, count = [], 0
     for case in campaign.cases(rec):
-        problems += campaign.check(rec, builder, case)
+        problems += judge.check(case)
         count += 1
     assert count >= 2 * len(rec.writes)
     assert not problems, report(problems)
+
+
+def test_survivors_that_share_an_upload_verdict_upload_alike(rec):
+    """The premise of sharing the upload's verdict (campaign.Judge): survivors with the
+    same card but different EEPROMs (cut during the chips' own writes, whole or
+    garbled, with the bookkeeping's images years apart) upload the job again to the same
+    card bytes."""
+    builder = campaign.MediaBuilder(rec)
+    groups = {}
+    for case in campaign.cases(rec):
+        if rec.writes[case.write - 1].medium in ("head", "reel0"):
+            groups.setdefault(builder.card_key(case), []).append(case)
+    groups = [g for g in groups.values() if len(g) > 4]
+    assert len(groups) >= 4
+    compared = 0
+    for group in groups[:: max(1, len(groups) // 6)]:
+        cards = set()
+        chosen = (group[0], group[len(group) // 2], group[-1])
+        assert len({builder.survivor(case).chips for case in chosen}) == 3
+        for case in chosen:
+            media = builder.survivor(case)
+            virtual = VirtualPrinter(media=media)
+            virtual.settle()
+            printer = campaign.connect(virtual)
+            printer.clear_errors()
+            sent = printer.send_file(campaign.JOB, campaign.JOB_ID, resume=True)
+            assert sent.restarted
+            cards.add(virtual.hw.card.storage.read(0, campaign.CARD_BLOCKS * 512))
+            compared += 1
+        assert len(cards) == 1, group[0].id
+    assert compared >= 12
 
 
 def test_the_recorded_survivor_is_what_a_real_cut_leaves(rec):
