@@ -61,10 +61,11 @@ def image_revision(image: bytes) -> str | None:
 
 def flashed_image_pages(flash: bytes) -> int:
     """Pages of the image in a flash dump: up to the last page in 0..506 not erased."""
-    for page in reversed(IMAGE_PAGES):
-        if bytes(flash[page * PAGE_SIZE : (page + 1) * PAGE_SIZE]) != b"\xff" * PAGE_SIZE:
-            return page + 1
-    return 0
+    image = bytes(flash[IMAGE_PAGES.start * PAGE_SIZE : IMAGE_PAGES.stop * PAGE_SIZE])
+    if len(image) < len(IMAGE_PAGES) * PAGE_SIZE:  # a short dump: its missing pages count
+        return IMAGE_PAGES.stop
+    programmed = len(image.rstrip(b"\xff"))
+    return 0 if programmed == 0 else IMAGE_PAGES.start + -(-programmed // PAGE_SIZE)
 
 
 def anti_checksum(total: int) -> int:
