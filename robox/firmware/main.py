@@ -245,7 +245,7 @@ class Firmware:
         else:
             done = eeproms.run_inert_passes(dt, most)
         if done:
-            for _ in range(done):
+            for _ in range(done if usb.arriving else 0):
                 usb.frame()
             self.hw.machine.advance(dt * done)
             self.motion.catch_up()

@@ -66,7 +66,7 @@ from robox.sim.printer import Media, VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
 from tests.faults.campaign import Case, State, observe
 
-CARD_BLOCKS = 4096
+CARD_BLOCKS = 2048  # the smallest card on which a new file may start past block 1
 JOB_ID = "part"
 HOST_IDLE_S = 8.0  # a slow link: simulated seconds the host spends per chunk
 CHIPS = (EepromIndex.HEAD, EepromIndex.REEL0)
@@ -134,6 +134,12 @@ class Recording:
     initial: Media
     writes: list[Write]
     final: Media
+
+    def initial_files(self) -> State:
+        """The initial card as a mount shows it (worked out once)."""
+        if "_initial_files" not in self.__dict__:
+            self._initial_files = files_of(self.initial)
+        return self._initial_files
 
     def chip_images(self, n: int, chip: int) -> list[bytes]:
         """The distinct RAM images of a chip the firmware had asked for up to write n."""
@@ -292,7 +298,7 @@ def job_digest() -> str:
 
 
 def judge_card(rec: Recording, case: Case, state: State) -> list[str]:
-    before = files_of(rec.initial)
+    before = rec.initial_files()
     problems = [f"committed file {f[0]!r} lost or changed" for f in before.files
                 if f not in state.files]
     new_id = make_id(JOB_ID)
