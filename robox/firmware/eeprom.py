@@ -369,10 +369,10 @@ class Eeproms:
 
         A loading or verifying EEPROM takes one step a pass; while those steps are
         acknowledged reads that neither end a bank nor find a byte to rewrite, they are
-        taken together at the end, as the reads they are. A settled
-        EEPROM's steps (one every QUIET_STEP_S) are taken at their own passes. The run
-        stops before any other step, so the next pass finds things as the passes one by
-        one would have left them."""
+        taken together at the end, as the reads they are. A settled EEPROM's steps (one
+        every QUIET_STEP_S) are taken at their own passes. The run stops before any
+        other step, so the next pass finds things as the passes one by one would have
+        left them."""
         clock = self.clock
         loading = []
         settled = []

@@ -160,7 +160,10 @@ class Firmware:
         While motion runs the firmware spins pass by pass; when all that waits is a line
         waiting for room in the motion queue (or for motion to end), the step interrupts
         are run ahead to the moment that happens and the clock moves on to the first
-        pass after it, as if every pass in between had looked and found nothing."""
+        pass after it, as if every pass in between had looked and found nothing. When
+        the only work is light (an EEPROM stepping, a transfer crossing the bus: see
+        _run_light_passes), the passes up to a pass short of the next moment any object
+        waits for are light, and the last one is whole."""
         light = False
         if self._busy_apart_from_light():
             return PASS_S, 1
