@@ -59,13 +59,19 @@ def image_revision(image: bytes) -> str | None:
     return raw.split(b"\0", 1)[0].decode("ascii", "replace").strip() or None
 
 
+_ERASED_WORD = np.uint64(0xFFFF_FFFF_FFFF_FFFF)
+
+
 def flashed_image_pages(flash: bytes) -> int:
     """Pages of the image in a flash dump: up to the last page in 0..506 not erased."""
-    image = bytes(flash[IMAGE_PAGES.start * PAGE_SIZE : IMAGE_PAGES.stop * PAGE_SIZE])
+    image = memoryview(flash)[IMAGE_PAGES.start * PAGE_SIZE : IMAGE_PAGES.stop * PAGE_SIZE]
     if len(image) < len(IMAGE_PAGES) * PAGE_SIZE:  # a short dump: its missing pages count
         return IMAGE_PAGES.stop
-    programmed = len(image.rstrip(b"\xff"))
-    return 0 if programmed == 0 else IMAGE_PAGES.start + -(-programmed // PAGE_SIZE)
+    # the last 8-byte word not erased, found by numpy (a byte loop costs 50x as much)
+    programmed = np.flatnonzero(np.frombuffer(image, dtype="<u8") != _ERASED_WORD)
+    if len(programmed) == 0:
+        return 0
+    return IMAGE_PAGES.start + int(programmed[-1]) // (PAGE_SIZE // 8) + 1
 
 
 def anti_checksum(total: int) -> int:

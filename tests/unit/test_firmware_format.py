@@ -130,3 +130,35 @@ def test_flash_layout_constants():
 def test_detection_of_sd_text():
     assert fw.looks_like_sd_text(b"0A1b\r\n")
     assert not fw.looks_like_sd_text(b"\x00\x01") and not fw.looks_like_sd_text(b"  ")
+
+
+def pages_by_bytes(flash: bytes) -> int:
+    """Flashed pages worked out byte by byte: the last byte of pages 0..506 not 0xff."""
+    image = flash[: 507 * 256]
+    if len(image) < 507 * 256:
+        return 507
+    last = max((i for i, b in enumerate(image) if b != 0xFF), default=-1)
+    return last // 256 + 1
+
+
+@given(st.integers(0, 507 * 256), st.integers(0, 255), st.booleans(), st.integers(0, 2**16))
+@settings(max_examples=300)
+def test_flashed_image_pages_finds_the_last_programmed_byte(length, last, tail, seed):
+    # a dump programmed up to `length` bytes, ending in `last` (0xff when the image's
+    # own last byte happens to be erased), then erased flash, sometimes with the hours
+    # and other pages past the image programmed
+    rng = np.random.default_rng(seed)
+    flash = bytearray(b"\xff" * (512 * 256))
+    flash[:length] = rng.integers(0, 256, length, dtype=np.uint8).tobytes()
+    if length:
+        flash[length - 1] = last
+    if tail:
+        flash[507 * 256 :] = rng.integers(0, 256, 5 * 256, dtype=np.uint8).tobytes()
+    assert fw.flashed_image_pages(bytes(flash)) == pages_by_bytes(bytes(flash))
+
+
+def test_flashed_image_pages_of_a_short_dump_counts_its_missing_pages():
+    assert fw.flashed_image_pages(b"\x00" * 256) == 507
+    assert fw.flashed_image_pages(b"\xff" * (507 * 256)) == 0
+    assert fw.flashed_image_pages(b"\xff" * (300 * 256) + b"\x00" + b"\xff" * (207 * 256 - 1)) \
+        == 301
