@@ -19,24 +19,74 @@ class Storage(Protocol):
 
 
 class MemoryStorage:
-    """A bytearray; `data` is the live content."""
+    """Bytes in memory; `data` is the live content, a bytearray.
+
+    Copy on write: built from `bytes`, the store reads those bytes themselves, and a
+    write copies only the CHUNK-byte pieces it touches (kept apart until `data` is asked
+    for, which joins everything into one bytearray). A medium powered up to be read and
+    written in a few places, as each survivor of a fault campaign is, never copies whole.
+    """
+
+    CHUNK = 4096
 
     def __init__(self, data: bytes | bytearray):
-        self.data = bytearray(data)
-        self.size = len(self.data)
+        # bytes are immutable, so shared; a bytearray is the caller's, so copied
+        self._base: bytes | None = data if type(data) is bytes else None
+        self._data: bytearray | None = None if self._base is not None else bytearray(data)
+        self._chunks: dict[int, bytearray] = {}  # chunk index -> its bytes as written
+        self.size = len(data)
 
     @classmethod
     def adopt(cls, data: bytearray) -> MemoryStorage:
         """A store over `data` itself, not a copy (the caller hands it over)."""
         storage = cls(b"")
-        storage.data, storage.size = data, len(data)
+        storage._base, storage._data, storage.size = None, data, len(data)
         return storage
 
+    @property
+    def data(self) -> bytearray:
+        if self._data is None:
+            data = bytearray(self._base)
+            for index, chunk in self._chunks.items():
+                data[index * self.CHUNK : index * self.CHUNK + len(chunk)] = chunk
+            self._data, self._base, self._chunks = data, None, {}
+        return self._data
+
     def read(self, offset: int, length: int) -> bytes:
-        return bytes(self.data[offset : offset + length])
+        if self._data is not None:
+            return bytes(self._data[offset : offset + length])
+        end = min(offset + length, self.size)
+        if not self._chunks or offset >= end:
+            return self._base[offset:end]
+        size = self.CHUNK
+        first, last = offset // size, (end - 1) // size
+        if first == last:
+            chunk = self._chunks.get(first)
+            if chunk is None:
+                return self._base[offset:end]
+            return bytes(chunk[offset - first * size : end - first * size])
+        pieces = []
+        for index in range(first, last + 1):
+            start, stop = max(offset, index * size), min(end, (index + 1) * size)
+            chunk = self._chunks.get(index)
+            pieces.append(self._base[start:stop] if chunk is None
+                          else chunk[start - index * size : stop - index * size])
+        return b"".join(pieces)
 
     def write(self, offset: int, data: bytes) -> None:
-        self.data[offset : offset + len(data)] = data
+        end = offset + len(data)
+        if self._data is not None or end > self.size:  # growing: as a bytearray would
+            self.data[offset:end] = data
+            return
+        size, view = self.CHUNK, memoryview(data)
+        for index in range(offset // size, (end - 1) // size + 1):
+            chunk = self._chunks.get(index)
+            if chunk is None:
+                chunk = self._chunks[index] = bytearray(
+                    self._base[index * size : (index + 1) * size])
+            start, stop = max(offset, index * size), min(end, (index + 1) * size)
+            chunk[start - index * size : stop - index * size] = view[start - offset :
+                                                                      stop - offset]
 
     def flush(self) -> None:
         pass
