@@ -66,6 +66,9 @@ def _defaults() -> dict:
     }
 
 
+_FACTORY = _defaults()
+
+
 class Parameters:
     """The firmware's parameters (`pa`): factory settings, the G-codes that change them,
     M500/M501/M502 and M503's text, byte for byte."""
@@ -82,7 +85,9 @@ class Parameters:
         return struct.unpack("<I", self.fw.hw.flash.read(DEFAULT_OFFSET, 4))[0]
 
     def defaults(self) -> None:
-        self.values = _defaults()
+        # a fresh copy of the factory settings, worked out once (every power-up needs them)
+        self.values = {name: dict(value) if isinstance(value, dict) else value
+                       for name, value in _FACTORY.items()}
 
     # ------------------------------------------------------------ G-codes
     def set_from_line(self, code: int, line: Line) -> None:

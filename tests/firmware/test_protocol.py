@@ -324,3 +324,17 @@ def test_a_power_cut_during_a_job_loses_its_hours(wire):
     wire.fw.power_up()
     wire.printer.run_until(lambda: False, 40)
     assert wire.raw(b"\xb6") == b"\xea1.000000"
+
+
+def test_parameters_set_on_one_printer_leave_the_next_printers_factory_settings(wire):
+    # the factory settings are worked out once; each power-up takes its own copy
+    wire.gcode(b"M92 X80 E500\r")
+    wire.gcode(b"M301 P0.5\r")
+    changed = wire.gcode(b"M503\n")
+    assert b"M92 X80.000000 Y133.699997" in changed and b"M301 P5.000000e-01" in changed
+    from tests.firmware.wire import Wire
+    fresh = Wire()
+    fresh.printer.settle()
+    m503 = fresh.gcode(b"M503\n")
+    assert b"M92 X133.699997 Y133.699997 Z6400.000000 E747.000000 " in m503
+    assert b"M301 P8.000000e-02 I1.200000e-02" in m503
