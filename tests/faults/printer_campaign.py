@@ -234,16 +234,20 @@ class MediaBuilder:
     def card_key(self, case: Case) -> tuple:
         """Names the survivor's card: equal keys, equal card bytes."""
         writes = self.rec.writes
-        held = self._card_writes_before(case.write)
+        held = self._writes_before("card", case.write)
         if writes[case.write - 1].medium != "card":
             return (held,)
         return (held, case.mode, case.param)
 
-    def _card_writes_before(self, n: int) -> int:
-        counts = self.__dict__.setdefault("_card_counts", [0])
-        while len(counts) < n:
-            counts.append(counts[-1] + (self.rec.writes[len(counts) - 1].medium == "card"))
-        return counts[n - 1]
+    def _writes_before(self, medium: str, n: int) -> int:
+        """How many of writes 1..n-1 went to `medium`."""
+        counts = self.__dict__.setdefault("_counts", {})
+        if medium not in counts:
+            running = [0]
+            for write in self.rec.writes:
+                running.append(running[-1] + (write.medium == medium))
+            counts[medium] = running
+        return counts[medium][n - 1]
 
     def chip_byte(self, n: int, write: Write) -> int:
         self.advance_to(n - 1)
@@ -253,24 +257,39 @@ class MediaBuilder:
         """The media after power failed during `case`'s write."""
         self.advance_to(case.write - 1)
         write = self.rec.writes[case.write - 1]
-        card, flash = bytearray(self.card), bytearray(self.flash)
-        chips = {name: bytearray(data) for name, data in self.chips.items()}
+        card, flash = self._frozen("card"), self._frozen("flash")
+        chips = {name: bytes(data) for name, data in self.chips.items()}
         landed = write.data
         if write.medium == "card":
+            offset = write.address * BLOCK_SIZE
             tear = case.landing().tear()
             if tear is not None:
-                offset = write.address * BLOCK_SIZE
-                landed = tear.apply(bytes(card[offset : offset + BLOCK_SIZE]), write.data)
-            card[write.address * BLOCK_SIZE : (write.address + 1) * BLOCK_SIZE] = landed
+                landed = tear.apply(card[offset : offset + BLOCK_SIZE], write.data)
+            card = _spliced(self.card, offset, landed)
         elif write.medium == "flash":
             count = PAGE_SIZE if case.mode == "whole" else case.param
             landed = write.data[:count] + b"\xff" * (PAGE_SIZE - count)
-            flash[write.address * PAGE_SIZE : (write.address + 1) * PAGE_SIZE] = landed
+            flash = _spliced(self.flash, write.address * PAGE_SIZE, landed)
         else:
-            chips[write.medium][write.address] = \
-                case.param if case.mode == "garble" else write.data[0]
-        return Media(bytes(card), (bytes(chips["head"]), bytes(chips["reel0"]), None),
-                     bytes(flash))
+            byte = case.param if case.mode == "garble" else write.data[0]
+            chips[write.medium] = _spliced(self.chips[write.medium], write.address,
+                                           bytes([byte]))
+        return Media(card, (chips["head"], chips["reel0"], None), flash)
+
+    def _frozen(self, medium: str) -> bytes:
+        """The card's or the flash's bytes as they stand, copied once per change: the
+        survivors of cuts that did not touch a medium share its bytes."""
+        frozen = self.__dict__.setdefault("_frozen_media", {})
+        held = self._writes_before(medium, self.applied + 1)
+        if medium not in frozen or frozen[medium][0] != held:
+            frozen[medium] = (held, bytes(getattr(self, medium)))
+        return frozen[medium][1]
+
+
+def _spliced(data: bytearray, offset: int, landed: bytes) -> bytes:
+    """`data` with `landed` written at `offset`, in a single copy."""
+    view = memoryview(data)
+    return b"".join((view[:offset], landed, view[offset + len(landed) :]))
 
 
 # --------------------------------------------------------------------- judging
