@@ -121,13 +121,14 @@ class Eeproms:
             return
         now = self.clock.now
         statuses = [s.status for s in self.states]
-        appeared = [s == Status.VALID and p != Status.VALID
-                    for s, p in zip(statuses, self.previous, strict=True)]
-        if appeared[EepromIndex.HEAD]:
-            fw.file_system.check_for_head_change(self.head_dual_material())
-        if any(appeared):
-            fw.heaters.targets_from_reel()
-            fw.position.filament_info_from_reel()
+        if statuses != self.previous:
+            appeared = [s == Status.VALID and p != Status.VALID
+                        for s, p in zip(statuses, self.previous, strict=True)]
+            if appeared[EepromIndex.HEAD]:
+                fw.file_system.check_for_head_change(self.head_dual_material())
+            if any(appeared):
+                fw.heaters.targets_from_reel()
+                fw.position.filament_info_from_reel()
         if now - self.states[EepromIndex.HEAD].last_ack >= TIMEOUT_S:
             fw.heaters.shut_down_head_due_to_eeprom()
         if now >= self.update_due:

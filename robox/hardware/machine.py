@@ -93,6 +93,8 @@ class ThermalModel:
 
     def advance(self, seconds: float) -> None:
         target = self.ambient + self.gain * self.duty
+        if self.core == target and self.sensed == target:
+            return  # at rest: the formulas below would give these very values again
         core = self.core - target
         fall = math.exp(-seconds / self.tau)
         self.core = target + core * fall
