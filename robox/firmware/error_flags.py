@@ -28,4 +28,5 @@ class ErrorFlags:
 
     def report(self) -> bytes:
         """The 64 characters of the 0xe3 report: character i is bit i."""
-        return bytes(0x31 if self.bits >> i & 1 else 0x30 for i in range(ERROR_REPORT_BITS))
+        low = self.bits & ((1 << ERROR_REPORT_BITS) - 1)
+        return format(low, f"0{ERROR_REPORT_BITS}b")[::-1].encode("ascii")

@@ -143,9 +143,13 @@ def reply_length(data: bytes) -> int | None:
     raise ValueError(f"{code:#04x} starts no report")
 
 
+_ONES = bytes(0x31 if c == 0x31 else 0x30 for c in range(256))
+
+
 def error_bits(ack: bytes) -> int:
     """The error bits of an ack/errors report (its 64 characters after the code)."""
-    return sum(1 << i for i, c in enumerate(ack[1:65]) if c == 0x31)
+    # '1' is a set bit; any other byte a clear one
+    return int(bytes(ack[1:65]).translate(_ONES)[::-1] or b"0", 2)
 
 
 def error_names(bits: int) -> list[str]:
