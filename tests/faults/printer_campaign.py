@@ -42,6 +42,7 @@ was one.
 
 from __future__ import annotations
 
+import bisect
 import hashlib
 import math
 import random
@@ -137,17 +138,33 @@ class Recording:
 
     def initial_files(self) -> State:
         """The initial card as a mount shows it (worked out once)."""
-        if "_initial_files" not in self.__dict__:
-            self._initial_files = files_of(self.initial)
-        return self._initial_files
+        return self._worked_out("_initial_files", lambda: files_of(self.initial))
 
     def chip_images(self, n: int, chip: int) -> list[bytes]:
         """The distinct RAM images of a chip the firmware had asked for up to write n."""
-        seen: list[bytes] = []
-        for write in self.writes[:n]:
-            if not seen or seen[-1] != write.intents[chip]:
-                seen.append(write.intents[chip])
-        return seen
+        changes = self._worked_out("_chip_changes", self._chip_changes)[chip]
+        return [image for at, image in changes[: bisect.bisect_left(changes, (n, b""))]]
+
+    def directory_writes(self) -> list[tuple[int, bytes]]:
+        """(write number, nonvolatile bytes) of each write to the card's directory."""
+        return self._worked_out("_directories", lambda: [
+            (k, Directory.decode(write.data).nonvolatile)
+            for k, write in enumerate(self.writes, 1)
+            if write.medium == "card" and write.address == 0])
+
+    def _chip_changes(self) -> list[list[tuple[int, bytes]]]:
+        # per chip, (index of the write it first rode on, image) for each distinct image
+        changes: list[list[tuple[int, bytes]]] = [[] for _ in CHIPS]
+        for k, write in enumerate(self.writes):
+            for chip, image in enumerate(write.intents):
+                if not changes[chip] or changes[chip][-1][1] != image:
+                    changes[chip].append((k, image))
+        return changes
+
+    def _worked_out(self, name: str, work):
+        if name not in self.__dict__:
+            self.__dict__[name] = work()
+        return self.__dict__[name]
 
 
 class _Recorder(PowerPlan):
@@ -300,16 +317,16 @@ def files_of(media: Media) -> State:
 
 def _nonvolatile_written(rec: Recording, n: int) -> set[bytes]:
     """Nonvolatile bytes the directory held as of write n-1, and those of write n."""
-    legal = {Directory.decode(rec.initial.card[:BLOCK_SIZE]).nonvolatile}
-    latest = next(iter(legal))
-    for k, write in enumerate(rec.writes[:n], 1):
-        if write.medium == "card" and write.address == 0:
-            if k < n:
-                latest = Directory.decode(write.data).nonvolatile
-            else:
-                legal = {latest, Directory.decode(write.data).nonvolatile}
-    return legal if rec.writes[n - 1].medium == "card" and rec.writes[n - 1].address == 0 \
-        else {latest}
+    latest = Directory.decode(rec.initial.card[:BLOCK_SIZE]).nonvolatile
+    legal = set()
+    for k, nonvolatile in rec.directory_writes():
+        if k < n:
+            latest = nonvolatile
+        elif k == n:
+            legal.add(nonvolatile)
+        else:
+            break
+    return legal | {latest}
 
 
 def job_digest() -> str:
