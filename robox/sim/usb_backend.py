@@ -189,8 +189,7 @@ class VirtualRoboxBackend(usb.backend.IBackend):
         if not usb_link.reply_waiting:
             raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
         chunk = usb_link.host_read(len(buff))
-        for i, byte in enumerate(chunk):
-            buff[i] = byte
+        memoryview(buff)[: len(chunk)] = chunk
         return len(chunk)
 
     def intr_read(self, dev_handle, ep, intf, buff, timeout):
