@@ -526,13 +526,24 @@ class Motion:
         count = 0
         cap = length if cap is None else min(cap, length)
         isqrt = math.isqrt
+        # From this length up the square root's speed is at least the cruise speed, so it
+        # cannot be the least of the three and need not be worked out: its radicand,
+        # 2 * a * min(length, 2^23) + c, grows with the length (when it cannot wrap).
+        need = -(-top >> 14)
+        if (0x00800000 << 1) * a + c <= U32:
+            sure = max(0, -(-(need * need - c) // (2 * a)))
+            if sure > 0x00800000:
+                sure = 1 << 62
+        else:
+            sure = 1 << 62
         while True:
             length -= 1
-            v = isqrt((((length if length < 0x00800000 else 0x00800000) << 1) * a
-                       + c) & U32) << 14
             n = s + (period if period < maxp else maxp) * a
-            if v < n:
-                n = v
+            if length < sure:
+                v = isqrt((((length if length < 0x00800000 else 0x00800000) << 1) * a
+                           + c) & U32) << 14
+                if v < n:
+                    n = v
             if top < n:
                 n = top
             if n < floor_speed:

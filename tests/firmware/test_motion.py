@@ -6,6 +6,8 @@ import math
 import struct
 
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from robox.firmware import motion as motion_module
 from robox.formats.protocol import ErrorBit
@@ -441,3 +443,61 @@ def test_an_automaker_job_extrudes_and_books_the_volume_its_trailer_states(wire)
     # the only error: with no host connected, the reel's 210 C against the melt temperature
     # the head recorded (none) asks for a nozzle flush (get_nozzle_targets_from_reel)
     assert wire.fw.errors.bits == 1 << ErrorBit.NOZZLE_FLUSH_NEEDED
+
+
+def reference_ramp(length, speed, end_speed, a, s, period, maxp, tick, limit, cap):
+    """TC0_IrqHandler's speed update one interrupt at a time, the square root taken at
+    every interrupt (its 23-bit cap and 32-bit wrap included), stopping where the tight
+    loop stops: the speed held at cruise or floor, the block's end, the limit, the cap."""
+    count, c, top, floor_speed = 0, (end_speed * end_speed) >> 4, speed << 12, 2 << 12
+    cap = length if cap is None else min(cap, length)
+    while True:
+        length -= 1
+        v = math.isqrt(((min(length, 0x00800000) << 1) * a + c) & 0xFFFFFFFF) << 14
+        n = max(floor_speed, min(v, s + min(period, maxp) * a, top))
+        settled = n == s and n in (top, floor_speed)
+        s, period = n, ((0x10000 << 12) // n) & 0xFFFF
+        tick += period
+        count += 1
+        if settled or count >= cap or tick > limit:
+            return count, length, s, period, tick
+
+
+@settings(max_examples=400, deadline=None)
+@given(length=st.one_of(st.integers(1, 3000), st.integers(0x007FFF00, 1 << 24)),
+       speed=st.integers(2, 0xFFFF), end_speed=st.one_of(st.integers(0, 300),
+                                                          st.integers(0, 0xFFFF)),
+       a=st.one_of(st.integers(1, 255), st.just(255)), start=st.integers(2, 0xFFFF),
+       cap=st.one_of(st.none(), st.integers(1, 5000)))
+# cruising at 5 << 12, the root's 1 << 14 (one step left) is below it: the bound on the
+# root rounds the cruise speed up, not down
+@example(length=2, speed=5, end_speed=0, a=1, start=5, cap=None)
+def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end_speed, a,
+                                                              start, cap):
+    """The tight ramp loop (the model leaves out the square root while it cannot be the
+    least speed) against the interrupt's arithmetic taken literally: short blocks, where
+    the square root brings the speed down, and blocks past 2^23 steps, where its
+    radicand wraps at 32 bits when the end speed is high."""
+    from tests.firmware.wire import Wire
+    motion = _ramp_motion.setdefault("m", Wire().fw.motion)
+    motion.pa["acceleration"] = a
+    maxp = (0x10000 // math.isqrt(a << 3)) & 0xFFFF
+    motion.max_period_for_ramping = maxp
+    blk = motion_module.Block()
+    blk.length, blk.speed, blk.end_speed, blk.movers = length, speed, end_speed, ()
+    s = min(start, speed) << 12
+    motion.speed_x4k, motion.timer_period = s, ((0x10000 << 12) // s) & 0xFFFF
+    motion.next_tick, motion.active = 0, True
+    limit = 3 << 32
+    if cap is None and length > 3000:
+        cap = 20_000  # a speed the square root holds below cruise runs to the block's end
+    expected = reference_ramp(length, speed, end_speed, a, s, motion.timer_period, maxp, 0,
+                              limit, cap)
+    before = motion.interrupts
+    motion._singles(blk, limit, cap)
+    count, left, s, period, tick = expected
+    assert (motion.interrupts - before, blk.length, motion.speed_x4k, motion.timer_period,
+            motion.next_tick) == (count, left, s, period, tick)
+
+
+_ramp_motion: dict = {}
