@@ -47,7 +47,7 @@ import hashlib
 import math
 import random
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 
 import usb.core
 
@@ -138,20 +138,28 @@ class Recording:
 
     def initial_files(self) -> State:
         """The initial card as a mount shows it (worked out once)."""
-        return self._worked_out("_initial_files", lambda: files_of(self.initial))
+        return self._initial_files
 
     def chip_images(self, n: int, chip: int) -> list[bytes]:
         """The distinct RAM images of a chip the firmware had asked for up to write n."""
-        changes = self._worked_out("_chip_changes", self._chip_changes)[chip]
+        changes = self._chip_changes[chip]
         return [image for at, image in changes[: bisect.bisect_left(changes, (n, b""))]]
 
     def directory_writes(self) -> list[tuple[int, bytes]]:
         """(write number, nonvolatile bytes) of each write to the card's directory."""
-        return self._worked_out("_directories", lambda: [
-            (k, Directory.decode(write.data).nonvolatile)
-            for k, write in enumerate(self.writes, 1)
-            if write.medium == "card" and write.address == 0])
+        return self._directories
 
+    @cached_property
+    def _initial_files(self) -> State:
+        return files_of(self.initial)
+
+    @cached_property
+    def _directories(self) -> list[tuple[int, bytes]]:
+        return [(k, Directory.decode(write.data).nonvolatile)
+                for k, write in enumerate(self.writes, 1)
+                if write.medium == "card" and write.address == 0]
+
+    @cached_property
     def _chip_changes(self) -> list[list[tuple[int, bytes]]]:
         # per chip, (index of the write it first rode on, image) for each distinct image
         changes: list[list[tuple[int, bytes]]] = [[] for _ in CHIPS]
@@ -160,11 +168,6 @@ class Recording:
                 if not changes[chip] or changes[chip][-1][1] != image:
                     changes[chip].append((k, image))
         return changes
-
-    def _worked_out(self, name: str, work):
-        if name not in self.__dict__:
-            self.__dict__[name] = work()
-        return self.__dict__[name]
 
 
 class _Recorder(PowerPlan):
