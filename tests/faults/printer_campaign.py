@@ -146,7 +146,8 @@ class Recording:
         return [image for at, image in changes[: bisect.bisect_left(changes, (n, b""))]]
 
     def directory_writes(self) -> list[tuple[int, bytes]]:
-        """(write number, nonvolatile bytes) of each write to the card's directory."""
+        """(write number, nonvolatile bytes) of the initial directory (number 0) and of
+        each write to the card's directory."""
         return self._directories
 
     @cached_property
@@ -155,9 +156,10 @@ class Recording:
 
     @cached_property
     def _directories(self) -> list[tuple[int, bytes]]:
-        return [(k, Directory.decode(write.data).nonvolatile)
-                for k, write in enumerate(self.writes, 1)
-                if write.medium == "card" and write.address == 0]
+        blocks = [(0, self.initial.card[:BLOCK_SIZE])] + [
+            (k, write.data) for k, write in enumerate(self.writes, 1)
+            if write.medium == "card" and write.address == 0]
+        return [(k, Directory.decode(block).nonvolatile) for k, block in blocks]
 
     @cached_property
     def _chip_changes(self) -> list[list[tuple[int, bytes]]]:
@@ -320,8 +322,7 @@ def files_of(media: Media) -> State:
 
 def _nonvolatile_written(rec: Recording, n: int) -> set[bytes]:
     """Nonvolatile bytes the directory held as of write n-1, and those of write n."""
-    latest = Directory.decode(rec.initial.card[:BLOCK_SIZE]).nonvolatile
-    legal = set()
+    latest, legal = None, set()
     for k, nonvolatile in rec.directory_writes():
         if k < n:
             latest = nonvolatile
