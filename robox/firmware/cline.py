@@ -16,6 +16,7 @@ reference recordings were made on).
 
 from __future__ import annotations
 
+import builtins
 import math
 import re
 
@@ -122,7 +123,7 @@ class Line:
         rest = self._after(letter)
         return 0 if rest is None else strtol(rest)
 
-    def uint(self, letter: str) -> int:
+    def uint(self, letter: str) -> builtins.int:  # `int` here is the method above
         rest = self._after(letter)
         return 0 if rest is None else strtoul(rest)
 

@@ -25,9 +25,7 @@ What follows from the firmware's handling, and a host can see:
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
-from robox.firmware.gcode import Wait, is_reporting
+from robox.firmware.gcode import Wait, Waits, is_reporting
 from robox.formats.protocol import PAUSE_MASK, PAUSE_MASK_CONNECTED, ErrorBit
 from robox.formats.sdcard import ID_SIZE
 
@@ -84,7 +82,7 @@ class Command:
         self.last_ack_report = self.fw.clock.now
         self.memory = bytearray(MEMORY_SIZE)  # the simulated address space of 0xf0
         self.pending_after_reply = None  # reset or reprogram once the reply has left
-        self.line: Iterator[Wait] | None = None  # a line running inside this object
+        self.line: Waits | None = None  # a line running inside this object
         self.line_reply = None  # how its response is sent
         self.waiting: Wait | None = None
         self.deaf = False

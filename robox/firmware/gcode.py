@@ -21,8 +21,9 @@ owned by the command object, which reads no more input until it is done
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Generator
 from dataclasses import dataclass
+from typing import Any
 
 from robox.firmware.carith import f32, to_ulong
 from robox.firmware.cline import Line, strtol
@@ -45,10 +46,14 @@ class Wait:
     heater: str | None = None
 
 
+# A routine that may wait, as a generator: it yields what it waits for while the firmware
+# would spin do_everything_else(), and may return a value when done.
+Waits = Generator[Wait, None, Any]
+
 NEXT_PASS = Wait()
 
 
-def wait_for(condition, wait: Wait = NEXT_PASS) -> Iterator[Wait]:
+def wait_for(condition, wait: Wait = NEXT_PASS) -> Waits:
     while not condition():
         yield wait
 
@@ -94,7 +99,7 @@ class Job:
         self.parked = False
         self.running = False
         self.idle_since = now
-        self.current: Iterator[Wait] | None = None  # the job-level step under way
+        self.current: Waits | None = None  # the job-level step under way
         self.waiting: Wait | None = None
         self.lines_executed = 0
         self.jobs_completed = 0
@@ -123,7 +128,7 @@ class Job:
             return
         self.execute_buffer += data
 
-    def run_now(self, text: bytes) -> Iterator[Wait]:
+    def run_now(self, text: bytes) -> Waits:
         """The firmware's gcode_handler on `text`: the first complete line runs at once and
         its response (ending in ok) is the generator's return value; b"" if `text` holds
         no complete line."""
@@ -199,7 +204,7 @@ class Job:
         if step is not None:
             self._start(step)
 
-    def _action(self) -> Iterator[Wait] | None:
+    def _action(self) -> Waits | None:
         """The one thing maintain_job does this pass; a generator when it may wait."""
         fw = self.fw
         if self.abort_flag:
@@ -273,7 +278,7 @@ class Job:
             self.abort()  # even with no job: it turns the heaters off
             self.idle_since = now
 
-    def _slip_handling(self, i: int) -> Iterator[Wait]:
+    def _slip_handling(self, i: int) -> Waits:
         """A filament slip while printing: the fourth within the decay time is an error;
         before that, park and try backing the filament off and pushing it back; if the
         wheel does not turn, the filament has run out: pause, and unload it."""
@@ -302,7 +307,7 @@ class Job:
         if step is not None:
             yield from step
 
-    def pause_and_park(self) -> Iterator[Wait]:
+    def pause_and_park(self) -> Waits:
         """Before an unload: a running job is paused and parked."""
         if self.running:
             self.pause = 1
@@ -310,11 +315,11 @@ class Job:
                 yield from self.fw.position.park()
                 self.parked = True
 
-    def delay_aborting(self, seconds: float) -> Iterator[Wait]:
+    def delay_aborting(self, seconds: float) -> Waits:
         """delay_aborting(seconds): (unsigned long)(seconds * 1000) ticks."""
         yield from self.delay_ticks(to_ulong(seconds * 1000))
 
-    def delay_ticks(self, ticks: int) -> Iterator[Wait]:
+    def delay_ticks(self, ticks: int) -> Waits:
         """delay_aborting_i(): wait `ticks` of the 1 ms counter, ending early on abort.
         (A negative or NaN time converts to no tick, a huge one to 2**32 - 1.)"""
         if ticks == 0:
@@ -337,7 +342,7 @@ class Job:
         self.jobs_completed += 1
         fw.events.append(("job finished", job_id))
 
-    def _start(self, step: Iterator[Wait]) -> None:
+    def _start(self, step: Waits) -> None:
         self.current = step
         self._drive()
 
@@ -348,22 +353,22 @@ class Job:
             self.current = None
             self.waiting = None
 
-    def _buffer_line(self, buffer: bytearray, n: int) -> Iterator[Wait]:
+    def _buffer_line(self, buffer: bytearray, n: int) -> Waits:
         yield from self.process_line(bytes(buffer[:n]))
         if len(buffer) >= n:  # an abort may have emptied it meanwhile
             del buffer[:n]
         self.idle_since = self.fw.clock.now
 
-    def _park(self) -> Iterator[Wait]:
+    def _park(self) -> Waits:
         yield from self.fw.position.park()
         self.parked = True
 
-    def _unpark(self) -> Iterator[Wait]:
+    def _unpark(self) -> Waits:
         yield from self.fw.position.unpark()
         self.parked = False
 
     # -------------------------------------------------------- execution
-    def process_line(self, raw: bytes) -> Iterator[Wait]:
+    def process_line(self, raw: bytes) -> Waits:
         """Run one line (a generator: it yields while it waits); returns its response
         text, which always ends in ok."""
         line = Line(raw)
@@ -377,7 +382,7 @@ class Job:
             yield from self.fw.position.select_tool(line.int("T"), line)
         return (response or b"") + b"ok\r\n"
 
-    def _g(self, code: int, line: Line) -> Iterator[Wait]:
+    def _g(self, code: int, line: Line) -> Waits:
         pos = self.fw.position
         motion = self.fw.motion
         if code in (0, 1):
@@ -406,7 +411,7 @@ class Job:
         elif code == 92:
             yield from pos.set_position(line)
 
-    def _m(self, code: int, line: Line) -> Iterator[Wait]:
+    def _m(self, code: int, line: Line) -> Waits:
         fw = self.fw
         heaters = fw.heaters
         pos = fw.position

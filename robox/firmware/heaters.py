@@ -13,13 +13,16 @@ thermal plants (a deliberate difference: the physics is the model's own).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from robox.firmware.cline import Line, report_float, strtof
-from robox.firmware.gcode import Wait
+from robox.firmware.gcode import Wait, Waits
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
+
+if TYPE_CHECKING:
+    from robox.firmware.eeprom import Eeproms
 
 HEAD, REEL0, REEL1 = EepromIndex.HEAD, EepromIndex.REEL0, EepromIndex.REEL1
 SAMPLE_S = 1.0
@@ -123,7 +126,7 @@ class Heaters:
 
     # ---------------------------------------------------------- helpers
     @property
-    def _eeproms(self):
+    def _eeproms(self) -> Eeproms:
         return self.fw.eeproms
 
     def _reel_float(self, index: EepromIndex, address: int, default: float) -> float:
@@ -266,7 +269,7 @@ class Heaters:
     def enable_nozzle_forcing(self) -> None:
         self.nozzle_forcing = True
 
-    def heat_for_filament_unload(self, nozzle0: bool, nozzle1: bool) -> Iterator[Wait]:
+    def heat_for_filament_unload(self, nozzle0: bool, nozzle1: bool) -> Waits:
         """Before an unload: each nozzle named to the unload temperature (the head fan
         helping one that must cool), held there 5 s; then off, the fan as it was."""
         fan = self.head_fan_requested
@@ -324,7 +327,7 @@ class Heaters:
         self.pause_since = self.fw.clock.now
         self.timing_pause = True
 
-    def resume(self) -> Iterator[Wait]:
+    def resume(self) -> Waits:
         self.timing_pause = False
         self.nozzle[0].mode, self.nozzle[1].mode = self.nozzle_mode_at_pause
         yield from self.wait_for_nozzle(ignore_pause=True)
@@ -443,7 +446,7 @@ class Heaters:
         self.ambient_target_from_reel()
 
     # -------------------------------------------------------------- waits
-    def wait_for_nozzle(self, ignore_pause: bool = False) -> Iterator[Wait]:
+    def wait_for_nozzle(self, ignore_pause: bool = False) -> Waits:
         """M109: until the selected nozzle (nozzle 0 on a single-material head) is within
         1.7% of its target; no wait when it is off, the head unpowered, or on abort."""
         self.why_are_we_waiting = NOZZLE_AT_TEMPERATURE
@@ -461,7 +464,7 @@ class Heaters:
                 break
         self.why_are_we_waiting = NOT_WAITING
 
-    def wait_for_bed(self, line: Line, ignore_pause: bool = False) -> Iterator[Wait]:
+    def wait_for_bed(self, line: Line, ignore_pause: bool = False) -> Waits:
         """M190: until the bed is within 3% of its target, or (S, T) it is time to start
         heating a nozzle, or (P) the given seconds before the bed would get there."""
         self.why_are_we_waiting = BED_AT_TEMPERATURE
@@ -497,7 +500,7 @@ class Heaters:
             done = done or job.aborting()
         self.why_are_we_waiting = NOT_WAITING
 
-    def wait_for_bed_cool(self) -> Iterator[Wait]:
+    def wait_for_bed_cool(self) -> Waits:
         self.why_are_we_waiting = BED_COOLING
         while not self.fw.job.aborting() and self.bed.measured >= BED_HOT_TEMPERATURE:
             yield Wait(heater="bed")

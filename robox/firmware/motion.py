@@ -34,7 +34,7 @@ from collections.abc import Iterator
 from robox.firmware.carith import cmax, cmin, div, floor_long, to_ulong, to_ushort, wrap_long
 from robox.firmware.carith import sqrt as csqrt
 from robox.firmware.cline import float32
-from robox.firmware.gcode import Wait, wait_for
+from robox.firmware.gcode import Wait, Waits, wait_for
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, X, Y, Z
 
@@ -132,7 +132,8 @@ class Motion:
     def empty(self) -> bool:
         return self.buffer_out == self.buffer_in
 
-    idle = empty
+    def idle(self) -> bool:
+        return self.buffer_out == self.buffer_in
 
     def queued(self) -> int:
         return (self.buffer_in - self.buffer_out) & MASK
@@ -229,7 +230,7 @@ class Motion:
         if self.empty() or not any(self.block[n].inc[B] for n in self._queued_indices()):
             self.fw.heaters.force_nozzles_off(False)
 
-    def _queued_indices(self):
+    def _queued_indices(self) -> Iterator[int]:
         n = self.buffer_out
         while n != self.buffer_in:
             yield n
@@ -251,7 +252,7 @@ class Motion:
 
     # ------------------------------------------------------ queueing moves
     def add_block(self, feed_rate: float, speed_limit: float, check_z_top: bool,
-                  moves: list[float]) -> Iterator[Wait]:
+                  moves: list[float]) -> Waits:
         """add_block_to_buffer: queue `moves` (mm per axis, float32) and wait until the
         queue is ready for more; `moves` is rewritten with the distances the steps make
         (all 0 when the move is shorter than a step: it is absorbed into the next)."""
@@ -380,7 +381,7 @@ class Motion:
             end_speed = min(end_speed, self.max_speed_step // worst)
         return max(MIN_SPEED, min(MAX_SPEED, end_speed))
 
-    def wait_until_empty(self) -> Iterator[Wait]:
+    def wait_until_empty(self) -> Waits:
         yield from wait_for(self.empty, EMPTY_WAIT)
 
     # ------------------------------------------------------- the interrupt
@@ -395,7 +396,7 @@ class Motion:
         watches pass by pass can change (no filament whose slip is counted, the Z-top
         switch open)."""
         m = self.machine
-        return (m.filament[E] is None and m.filament[D] is None and m.z_top_pin()
+        return (m.filament[E] is None and m.filament[D] is None and m.z_top_pin() == 1
                 and not m.hand_busy())
 
     def run_ahead(self, until: float, kind: str) -> float | None:
@@ -637,7 +638,7 @@ class Motion:
         moves[axis] = float32(distance)
         return moves
 
-    def home_axis(self, axis: int, home_distance: float, abandon: float) -> Iterator[Wait]:
+    def home_axis(self, axis: int, home_distance: float, abandon: float) -> Waits:
         """Back off if the switch is already actuated, then run towards it until it trips
         plus the home distance (giving up after `abandon` mm). Returns the distance."""
         pa = self.pa
@@ -665,13 +666,13 @@ class Motion:
         self.switch_abandon_counter = 0
         return moved
 
-    def make_z_safe(self) -> Iterator[Wait]:
+    def make_z_safe(self) -> Waits:
         yield from self.wait_until_empty()
         moves = self._single(Z, Z_SAFE_LOWER if self.z_top_actuated() else Z_SAFE_RAISE)
         yield from self.add_block(FLT_MAX, FLT_MAX, False, moves)
         yield from self.wait_until_empty()
 
-    def rotate_gantry(self, distance: float) -> Iterator[Wait]:
+    def rotate_gantry(self, distance: float) -> Waits:
         yield from self.wait_until_empty()
         moves = self._single(Z, float32(0.5 * distance))
         self.machine.gantry_rotation = True
@@ -679,7 +680,7 @@ class Motion:
         yield from self.wait_until_empty()
         self.machine.gantry_rotation = False
 
-    def select_nozzle(self, distance: float, abandon: float) -> Iterator[Wait]:
+    def select_nozzle(self, distance: float, abandon: float) -> Waits:
         """Move the valve to the side of its switch `distance` asks for (+: nozzle 0),
         backing off first when already there; up to three retries at half speed each,
         then B_POSITION_LOST / B_STUCK. Returns the distance to the switch."""
@@ -725,7 +726,7 @@ class Motion:
 
     def _watched_move(self, axis: int, what: int, invert: int, slip: bool,
                       abandon_steps: int, distance: float,
-                      speed_limit: float = FLT_MAX) -> Iterator[Wait]:
+                      speed_limit: float = FLT_MAX) -> Waits:
         """Move `axis` by `distance`, its length counted down only once the axis's
         switch reads other than `invert` (or, with `slip`, once the filament slips),
         abandoned after `abandon_steps` interrupts; returns the interrupts left."""
@@ -745,7 +746,7 @@ class Motion:
     def _abandon_steps(self, axis: int, distance: float) -> int:
         return to_ulong(float32(float32(distance) * self.pa["steps_per_unit"][AXES[axis]]))
 
-    def grab_filament(self, axis: int, overtravel: float, abandon: float) -> Iterator[Wait]:
+    def grab_filament(self, axis: int, overtravel: float, abandon: float) -> Waits:
         invert = self.pa["invert_switch"][AXES[axis]]
         yield from self.wait_until_empty()
         if self.aborting():
@@ -759,7 +760,7 @@ class Motion:
                                           self._abandon_steps(axis, abandon), overtravel)
         return self.switch_actuated(axis)
 
-    def load_filament(self, axis: int, overtravel: float, distance: float) -> Iterator[Wait]:
+    def load_filament(self, axis: int, overtravel: float, distance: float) -> Waits:
         spu = self.pa["steps_per_unit"][AXES[axis]]
         yield from self.wait_until_empty()
         if self.aborting():
@@ -769,7 +770,7 @@ class Motion:
                                       int((distance - 2.0 * overtravel) * spu), overtravel)
         return not self.filament_slip and self.switch_actuated(axis)
 
-    def unload_filament(self, axis: int, overtravel: float, abandon: float) -> Iterator[Wait]:
+    def unload_filament(self, axis: int, overtravel: float, abandon: float) -> Waits:
         yield from self.wait_until_empty()
         if self.aborting():
             return
@@ -779,7 +780,7 @@ class Motion:
         self.holdoff_since = self.fw.clock.now
 
     def move_filament_until_slip(self, axis: int, overtravel: float, abandon: float,
-                                 speed_limit: float) -> Iterator[Wait]:
+                                 speed_limit: float) -> Waits:
         invert = self.pa["invert_switch"][AXES[axis]]
         spu = self.pa["steps_per_unit"][AXES[axis]]
         yield from self.wait_until_empty()

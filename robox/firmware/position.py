@@ -19,11 +19,10 @@ whole millimetres of filament used come off the reel's remaining length.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 
 from robox.firmware.carith import UINT_MAX, cfloor, cmax, cmin, div, f32_accumulate, to_ulong
 from robox.firmware.cline import Line, float32, report_float, strtof
-from robox.firmware.gcode import Wait
+from robox.firmware.gcode import Waits
 from robox.firmware.motion import FLT_MAX
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
@@ -123,7 +122,7 @@ class Position:
         return f32(acc * v)
 
     # ------------------------------------------------------------ moves
-    def do_move(self, feed_rate: float, speed_limit: float) -> Iterator[Wait]:
+    def do_move(self, feed_rate: float, speed_limit: float) -> Waits:
         """Queue the move that brings the position to the destination (travel limits,
         tool offsets, levelling), then book the distances the steps really make.
         Returns whether a block was queued (False: every axis was within half a step)."""
@@ -198,7 +197,7 @@ class Position:
             move = f32(d - pos[i])
         return self.motion.steps_for(i, move)
 
-    def move(self, line: Line, rapid: bool = False) -> Iterator[Wait]:
+    def move(self, line: Line, rapid: bool = False) -> Waits:
         """G0/G1 (do_g0_g1)."""
         moves = [0.0] * 6
         has_xyz = has_edb = False
@@ -257,7 +256,7 @@ class Position:
                             dest[i] = f32_accumulate(dest[i], moves[i], still)
                     left -= still
 
-    def select_tool(self, tool: int, line: Line) -> Iterator[Wait]:
+    def select_tool(self, tool: int, line: Line) -> Waits:
         """T0/T1 (do_tool_change): Z first when it goes up, last when it goes down; the
         new nozzle selected before X/Y when the old one hangs lower, after otherwise."""
         tool = max(0, min(2, tool))
@@ -290,7 +289,7 @@ class Position:
                 off[Y] = f32(self._tool_float(tool, 8) + self.pa["y_offset"])
                 yield from self.do_move(FLT_MAX, FLT_MAX)
 
-    def _select_valve(self, tool: int, line: Line) -> Iterator[Wait]:
+    def _select_valve(self, tool: int, line: Line) -> Waits:
         if not self.fw.eeproms.head_has_b_axis():
             return
         dest, off = self.destination, self.tool_offset
@@ -313,7 +312,7 @@ class Position:
         self.position[B] = opening
         self.homing_done[B] = True
 
-    def home(self, line: Line) -> Iterator[Wait]:
+    def home(self, line: Line) -> Waits:
         """G28 (do_homing): Z made safe once, then X and Y (absolute), then Z
         (nozzle-relative, adding a levelling point); '?' measures without setting."""
         pa = self.pa
@@ -356,7 +355,7 @@ class Position:
                                           self.home_delta[Z])
             yield from self.do_move(FLT_MAX, FLT_MAX)
 
-    def set_position(self, line: Line) -> Iterator[Wait]:
+    def set_position(self, line: Line) -> Waits:
         """G92: wait for motion; the axes given are where the head is, and count as homed."""
         yield from self.motion.wait_until_empty()
         for i in (X, Y, Z):
@@ -369,7 +368,7 @@ class Position:
                     self.position[Z] = f32(self.position[Z]
                                            + self.z_correction(0.0, 0.0, self.destination[Z]))
 
-    def unlock_cover(self, line: Line) -> Iterator[Wait]:
+    def unlock_cover(self, line: Line) -> Waits:
         """G37: home Y if needed; unless S, heaters off and wait for the bed to cool (the
         ambient fan helping); then Y to the unlock position, beyond its travel."""
         if not self.homing_done[Y]:
@@ -387,7 +386,7 @@ class Position:
             self.position[Y] = f32(self.position[Y] + moves[Y])
             self.destination[Y] = f32(self.position[Y] - self.tool_offset[Y])
 
-    def level_gantry(self) -> Iterator[Wait]:
+    def level_gantry(self) -> Waits:
         """G38: from the last two Z homes, at least 50 mm apart in X, turn the gantry
         (clamped to 10 mm, MAX_GANTRY_ADJUSTMENT) and correct Z for where it was homed."""
         if len(self.levelling) < 2:
@@ -419,7 +418,7 @@ class Position:
             self.levelling = []
 
     # ------------------------------------------------------------ filament
-    def load_filament(self, line: Line) -> Iterator[Wait]:
+    def load_filament(self, line: Line) -> Waits:
         """M120 (do_filament_load): grab each filament named, carriage to the load X,
         load it, then push it on until it slips."""
         pa = self.pa
@@ -448,7 +447,7 @@ class Position:
                         FILAMENT_LOAD_SPEED_TO_SLIP)
         self.what = NORMAL
 
-    def unload_filament(self, line: Line, pause: bool) -> Iterator[Wait]:
+    def unload_filament(self, line: Line, pause: bool) -> Waits:
         """M121 (pausing a running job first) and M122: carriage to the load X, the
         nozzle to its unload temperature, then the filament back out."""
         job = self.fw.job
@@ -474,7 +473,7 @@ class Position:
                                                        FILAMENT_UNLOAD_ABANDON)
         self.what = NORMAL
 
-    def move_filament_until_slip(self, line: Line) -> Iterator[Wait]:
+    def move_filament_until_slip(self, line: Line) -> Waits:
         """G36: each filament named moves until it slips (F: its own speed, mm/min)."""
         speed = f32(line.float("F") / 60.0) if line.has("F") else FLT_MAX
         for i in (E, D):
@@ -489,7 +488,7 @@ class Position:
             self.destination[i] = f32(self.destination[i] + moved)
             self.position[i] = f32(self.position[i] + moved)
 
-    def filament_slip_retry(self, extruder: int) -> Iterator[Wait]:
+    def filament_slip_retry(self, extruder: int) -> Waits:
         """Back the filament off 8.3 mm; if the wheel turned, wait 5 s and push it back
         (True), otherwise back it off again (False)."""
         motion = self.motion
@@ -511,7 +510,7 @@ class Position:
         return False
 
     # ---------------------------------------------------------- parking
-    def park(self) -> Iterator[Wait]:
+    def park(self) -> Waits:
         """Wait for motion, remember where the job was, close the valve, lift Z 2 mm."""
         yield from self.motion.wait_until_empty()
         self.unpark_relative = self.relative
@@ -525,7 +524,7 @@ class Position:
         yield from self.motion.wait_until_empty()
         self.fw.heaters.pause()
 
-    def unpark(self, reselect_tool: bool = False) -> Iterator[Wait]:
+    def unpark(self, reselect_tool: bool = False) -> Waits:
         """Heaters back to temperature, then back to where the job was, its modes and
         its tool; the valve reopens last."""
         yield from self.fw.heaters.resume()
