@@ -38,7 +38,7 @@ def test_kill_9_at_moments_through_a_served_upload_leaves_a_state_that_reopens(t
     pristine = tmp_path / "pristine"
     job = tmp_path / "part.gcode"
     job.write_bytes(b"".join(f"G1 X{i % 50 + 10} Y{i % 37 + 10} F6000\n".encode()
-                             for i in range(4000)))
+                             for i in range(16000)))
     expected = job.read_bytes().replace(b"\n", b"\r")
     first = tmp_path / "first.gcode"
     first.write_bytes(b"G28 X Y\n" * 200)
