@@ -33,6 +33,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from robox.native import describe  # noqa: E402
 from robox.sim.printer import VirtualPrinter  # noqa: E402
 from tests.firmware.wire import Wire, hexn, ident  # noqa: E402
 
@@ -221,6 +222,7 @@ def main() -> None:
     wall = time.perf_counter() - start
     fw = printer.firmware
     simulated = fw.clock.now
+    print(f"firmware model: {describe()}")
     print(f"slic3r G-code {path.name}: {len(job) / 1e6:.2f} MB sent, {lines} lines, "
           f"{chunks + 1} chunks")
     print(f"  upload (printing meanwhile): {uploaded:.2f} s, {len(job) / 1e6 / uploaded:.2f} MB/s,"

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from robox.firmware import motion as motion_module
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import D, E
+from robox.native import compiled_modules
 from tests.firmware.wire import job_text
 
 SPU = {"X": 133.7, "Y": 133.7, "Z": 6400.0, "E": 747.0, "B": 2500.0}
@@ -101,6 +102,9 @@ def fresh_wire():
     return w
 
 
+@pytest.mark.skipif("robox.firmware.motion" in compiled_modules(),
+                    reason="a compiled class's methods cannot be replaced; the same source "
+                           "is checked by the pure-Python run")
 def test_runs_of_interrupts_and_skipped_passes_change_nothing(monkeypatch):
     """The model's fast paths (runs of identical interrupts, the tight ramp loop, passes
     skipped while only motion is awaited) give what one interrupt per call and one

@@ -1,0 +1,35 @@
+"""Which of the firmware model's hot modules run compiled.
+
+`ROBOX_NATIVE=1 pip install .` compiles them with mypyc (buildsys/robox_build.py,
+setup.py); every other install runs the same modules as pure Python. Both give the same
+bytes, positions and moments; the compiled ones only run faster.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+MODULES = (
+    "robox.firmware.carith",
+    "robox.firmware.cline",
+    "robox.firmware.motion",
+    "robox.firmware.position",
+    "robox.firmware.heaters",
+    "robox.hardware.machine",
+    "robox.hardware.clock",
+)
+
+
+def compiled_modules() -> list[str]:
+    """The modules of MODULES loaded from a compiled extension."""
+    out = []
+    for name in MODULES:
+        path = getattr(importlib.import_module(name), "__file__", None) or ""
+        if not path.endswith(".py"):
+            out.append(name)
+    return out
+
+
+def describe() -> str:
+    n = len(compiled_modules())
+    return "pure Python" if n == 0 else f"compiled core ({n} of {len(MODULES)} modules)"

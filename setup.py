@@ -1,0 +1,31 @@
+"""Extension modules for the opt-in compiled core (see buildsys/robox_build.py); the
+rest of the package's metadata is in pyproject.toml."""
+
+import os
+
+from setuptools import setup
+
+# The firmware model's per-pass work: the step interrupt and block queue, segmenting and
+# positions, heaters, C arithmetic and line parsing, the machine the steps move, the clock.
+NATIVE_MODULES = [
+    "robox/firmware/carith.py",
+    "robox/firmware/cline.py",
+    "robox/firmware/motion.py",
+    "robox/firmware/position.py",
+    "robox/firmware/heaters.py",
+    "robox/hardware/machine.py",
+    "robox/hardware/clock.py",
+]
+
+
+def ext_modules():
+    if os.environ.get("ROBOX_NATIVE") != "1":
+        return []
+    from mypyc.build import mypycify
+
+    # the modules they import are type-checked only as far as the compiled ones need
+    options = ["--ignore-missing-imports", "--follow-imports=silent"]
+    return mypycify(options + NATIVE_MODULES, opt_level="3")
+
+
+setup(ext_modules=ext_modules())
