@@ -3,7 +3,7 @@
 With ROBOX_NATIVE=1 in the environment, a (non-editable) install compiles the
 firmware model's hot modules (setup.py, NATIVE_MODULES) with mypyc into C
 extensions; the same .py files stay beside them as the pure-Python fallback, and
-`robox.native.compiled()` tells which one runs. Without it, or for an editable
+`robox.native.describe()` tells which one runs. Without it, or for an editable
 install (whose compiled modules would shadow later edits of the sources), the
 package is pure Python as always.
 """
