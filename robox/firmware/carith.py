@@ -32,6 +32,27 @@ UINT_MAX = 0xFFFFFFFF
 
 _F32 = struct.Struct("<f")
 
+try:  # a native 64-bit integer where the compiled core is built (robox.native)
+    from mypy_extensions import i64
+except ImportError:  # otherwise only an annotation: int
+    i64 = int  # type: ignore[misc,assignment]
+
+
+def isqrt32(x: i64) -> i64:
+    """math.isqrt() of a whole number below 2**53, in native arithmetic when compiled: the
+    double's square root is within one of the answer, and the answer is checked both ways."""
+    r: i64 = int(math.sqrt(x))
+    if r * r > x:
+        r -= 1
+    elif (r + 1) * (r + 1) <= x:
+        r += 1
+    return r
+
+
+native_isqrt32 = isqrt32  # the body above, whichever runs (for the tests)
+if __file__.endswith(".py"):  # interpreted, the library's own is the quicker
+    isqrt32 = math.isqrt  # type: ignore[assignment]
+
 
 def f32(value: float) -> float:
     """`value` rounded to a C float (overflow gives an infinity, as C does)."""

@@ -31,7 +31,17 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 
-from robox.firmware.carith import cmax, cmin, div, floor_long, to_ulong, to_ushort, wrap_long
+from robox.firmware.carith import (
+    cmax,
+    cmin,
+    div,
+    floor_long,
+    i64,
+    isqrt32,
+    to_ulong,
+    to_ushort,
+    wrap_long,
+)
 from robox.firmware.carith import sqrt as csqrt
 from robox.firmware.cline import float32
 from robox.firmware.gcode import Wait, Waits, wait_for
@@ -63,6 +73,10 @@ EMPTY_WAIT = Wait(motion="empty")
 class Block:
     __slots__ = ("check_z_top", "end_speed", "inc", "length", "movers", "speed")
 
+    length: i64
+    speed: i64
+    end_speed: i64
+
     def __init__(self) -> None:
         self.length = 0
         self.speed = MIN_SPEED
@@ -78,6 +92,18 @@ def _max_speed_step(acceleration: int, allowable_error: int) -> int:
 
 
 class Motion:
+    # the interrupt's integers: native ones when compiled (robox.native)
+    speed_x4k: i64
+    timer_period: i64
+    max_period_for_ramping: i64
+    max_speed_step: i64
+    buffer_in: i64
+    buffer_out: i64
+    next_tick: i64
+    last_tick: i64
+    interrupts: i64
+    switch_abandon_counter: i64
+
     def __init__(self, firmware):
         self.fw = firmware
 
@@ -135,7 +161,7 @@ class Motion:
     def idle(self) -> bool:
         return self.buffer_out == self.buffer_in
 
-    def queued(self) -> int:
+    def queued(self) -> i64:
         return (self.buffer_in - self.buffer_out) & MASK
 
     def ready_for_more(self) -> bool:
@@ -370,10 +396,10 @@ class Motion:
             self.fw.heaters.set_head_power(True)
 
     def _end_speed(self, this: Block, nxt: Block) -> int:
-        a = self.pa["acceleration"]
+        a: i64 = self.pa["acceleration"]
         v = (min(0x00800000, nxt.length) << 1) * a
         v += (nxt.end_speed * nxt.end_speed) >> 4
-        end_speed = min(nxt.speed, math.isqrt(v & U32) << 2)
+        end_speed = min(nxt.speed, isqrt32(v & U32) << 2)
         p, q = this.inc, nxt.inc
         worst = max(abs(p[0] - q[0]), abs(p[1] - q[1]), abs(p[2] - q[2]),
                     abs(p[3] - q[3]), abs(p[4] - q[4]), abs(p[5] - q[5]))
@@ -424,12 +450,13 @@ class Motion:
         if n == 0:
             return 0
         b = self.buffer_out
-        length = 0
+        length: i64 = 0
         for _ in range(n):
             length += self.block[b].length
             b = (b + 1) & MASK
         speed = self.block[(self.buffer_in - 1) & MASK].speed
-        v = (((speed // self.pa["acceleration"] + MARGIN_UNITS) * speed) & U32) >> 5
+        a: i64 = self.pa["acceleration"]
+        v = (((speed // a + MARGIN_UNITS) * speed) & U32) >> 5
         return 0 if length < v else length - v + 1
 
     def _advance(self, limit: int, cap: int | None) -> None:
@@ -490,9 +517,9 @@ class Motion:
             acc[i] = (v + inc[i]) & U32
             if (v ^ acc[i]) & 0xFFFF0000:
                 m.step(i, 1 if inc[i] > 0 else -1)
-        a = self.pa["acceleration"]
-        v = math.isqrt(((min(0x00800000, blk.length - 1) << 1) * a
-                        + ((blk.end_speed * blk.end_speed) >> 4)) & U32)
+        a: i64 = self.pa["acceleration"]
+        v = isqrt32(((min(0x00800000, blk.length - 1) << 1) * a
+                     + ((blk.end_speed * blk.end_speed) >> 4)) & U32)
         s = self.speed_x4k + min(self.timer_period, self.max_period_for_ramping) * a
         s = min(v << 14, s, blk.speed << 12)
         self.speed_x4k = max(MIN_SPEED << 12, s)
@@ -515,47 +542,49 @@ class Motion:
         follow), at the block's end, at `limit` or after `cap` interrupts; a speed that
         holds while the block slows down (the square root's steps) runs on."""
         acc = self.acc
-        a = self.pa["acceleration"]
-        c = (blk.end_speed * blk.end_speed) >> 4
-        top = blk.speed << 12
-        maxp = self.max_period_for_ramping
-        floor_speed = MIN_SPEED << 12
-        s = self.speed_x4k
-        period = self.timer_period
-        tick = self.next_tick
-        length = blk.length
-        count = 0
-        cap = length if cap is None else min(cap, length)
-        isqrt = math.isqrt
+        a: i64 = self.pa["acceleration"]
+        c: i64 = (blk.end_speed * blk.end_speed) >> 4
+        top: i64 = blk.speed << 12
+        maxp: i64 = self.max_period_for_ramping
+        floor_speed: i64 = MIN_SPEED << 12
+        s: i64 = self.speed_x4k
+        period: i64 = self.timer_period
+        tick: i64 = self.next_tick
+        last: i64 = tick
+        length: i64 = blk.length
+        count: i64 = 0
+        most: i64 = length if cap is None else min(cap, length)
+        end: i64 = limit
+        n: i64
+        v: i64
         # From this length up the square root's speed is at least the cruise speed, so it
         # cannot be the least of the three and need not be worked out: its radicand,
         # 2 * a * min(length, 2^23) + c, grows with the length (when it cannot wrap).
-        need = -(-top >> 14)
+        need: i64 = -(-top >> 14)
+        sure: i64 = 1 << 62
         if (0x00800000 << 1) * a + c <= U32:
             sure = max(0, -(-(need * need - c) // (2 * a)))
             if sure > 0x00800000:
                 sure = 1 << 62
-        else:
-            sure = 1 << 62
         while True:
             length -= 1
             n = s + (period if period < maxp else maxp) * a
             if length < sure:
-                v = isqrt((((length if length < 0x00800000 else 0x00800000) << 1) * a
-                           + c) & U32) << 14
+                v = isqrt32((((length if length < 0x00800000 else 0x00800000) << 1) * a
+                              + c) & U32) << 14
                 if v < n:
                     n = v
             if top < n:
                 n = top
             if n < floor_speed:
                 n = floor_speed
-            settled = n == s and n in (top, floor_speed)
+            settled = n == s and (n == top or n == floor_speed)  # noqa: SIM109 (no tuple)
             s = n
             period = ((0x10000 << 12) // s) & 0xFFFF
             last = tick
             tick += period
             count += 1
-            if settled or count >= cap or tick > limit:
+            if settled or count >= most or tick > end:
                 break
         m = self.machine
         inc = blk.inc
@@ -578,8 +607,9 @@ class Motion:
         must stay exactly where it is for every one of them, no input the interrupt
         reads may change, the block may not end and `cap` counted ones are the most."""
         s = self.speed_x4k
-        a = self.pa["acceleration"]
+        a: i64 = self.pa["acceleration"]
         c = (blk.end_speed * blk.end_speed) >> 4
+        k: int
         counting = (self.fw.job.abort_flag or self.switch_abandon_counter == 0
                     or (self.slip_select and self.filament_slip))
         watching = not counting
@@ -588,7 +618,7 @@ class Motion:
         length = blk.length
         if length <= 1:
             return 1
-        v = math.isqrt(((min(0x00800000, length - 1) << 1) * a + c) & U32)
+        v = isqrt32(((min(0x00800000, length - 1) << 1) * a + c) & U32)
         if max(MIN_SPEED << 12, min(v << 14, blk.speed << 12)) != s:
             return 1
         if counting:
@@ -661,7 +691,7 @@ class Motion:
         self.switch_abandon_counter = to_ulong(float32(float32(abandon) * spu))
         yield from self.add_block(FLT_MAX, FLT_MAX, False, moves)
         yield from self.wait_until_empty()
-        v = float32(abandon - float32(div(float32(self.switch_abandon_counter), spu)))
+        v = float32(abandon - float32(div(float32(float(self.switch_abandon_counter)), spu)))
         moved = float32(moved + (v if home_distance >= 0.0 else -v))
         self.switch_abandon_counter = 0
         return moved
@@ -707,7 +737,7 @@ class Motion:
                 yield from self.add_block(FLT_MAX, speed, False, moves)
                 yield from self.wait_until_empty()
                 if not measured:
-                    moved = float32(abandon - float32(float32(self.switch_abandon_counter)
+                    moved = float32(abandon - float32(float32(float(self.switch_abandon_counter))
                                                       / spu))
                     moved = float32(moved - abs(moves[B]))
                     measured = True

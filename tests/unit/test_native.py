@@ -52,3 +52,25 @@ def test_the_build_backend_asks_for_mypyc_only_when_told_to(monkeypatch):
     assert backend.get_requires_for_build_wheel() == ["wheel", backend.MYPYC]
     # setup.py is run without mypyc while the requirements are listed, then it is back on
     assert seen == [None, "0"] and os.environ["ROBOX_NATIVE"] == "1"
+
+
+def _square_edges() -> list[int]:
+    """Whole numbers on both sides of squares, where a rounded square root would go wrong,
+    up to the 2**32 the interrupt's radicands stay below and on to 2**53."""
+    out = [0, 1, 2, 3]
+    roots = [*range(2, 70_000, 3), 2**26 - 1, 2**26, 2**26 + 1, 94_906_265, 94_906_266]
+    for k in roots:
+        out += [k * k - 1, k * k, k * k + 1]
+    return [x for x in out if x < 2**53]
+
+
+def test_the_native_square_root_is_math_isqrt():
+    """carith.isqrt32's own body (in native integers when compiled; interpreted, the name
+    is math.isqrt itself) gives math.isqrt's answer on every square's edge."""
+    import math
+
+    from robox.firmware.carith import isqrt32, native_isqrt32
+
+    edges = _square_edges()
+    assert [native_isqrt32(x) for x in edges] == [math.isqrt(x) for x in edges]
+    assert [isqrt32(x) for x in edges[:1000]] == [math.isqrt(x) for x in edges[:1000]]
