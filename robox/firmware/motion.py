@@ -42,8 +42,8 @@ from robox.firmware.carith import (
     to_ushort,
     wrap_long,
 )
+from robox.firmware.carith import f32 as float32
 from robox.firmware.carith import sqrt as csqrt
-from robox.firmware.cline import float32
 from robox.firmware.gcode import Wait, Waits, wait_for
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, X, Y, Z

@@ -74,3 +74,40 @@ def test_the_native_square_root_is_math_isqrt():
     edges = _square_edges()
     assert [native_isqrt32(x) for x in edges] == [math.isqrt(x) for x in edges]
     assert [isqrt32(x) for x in edges[:1000]] == [math.isqrt(x) for x in edges[:1000]]
+
+
+def _float_cases() -> list[float]:
+    """Doubles around the float grid: the float32 values of a seeded sample and the points
+    half a float-step either side (ties), a hair inside and outside them, each power of
+    two's neighbours, the normal range's ends, the overflow edge, zeros, infinities, NaN."""
+    import math
+    import random
+
+    from robox.firmware.carith import struct_f32
+
+    rng = random.Random(1913)
+    out = [0.0, -0.0, math.inf, -math.inf, math.nan, 1e-45, 7e-46, 1.1754942e-38,
+           3.4028234663852886e38, 3.4028235677973366e38, 3.402823567797336e38]
+    for _ in range(20_000):
+        out.append(rng.uniform(-1.0, 1.0) * 2.0 ** rng.randint(-160, 140))
+        f = struct_f32(rng.uniform(-1e6, 1e6))
+        half = 2.0 ** (math.frexp(f)[1] - 25)
+        out += [f, f + half, f - half, f + half * (1 + 2**-20), f - half * (1 - 2**-20)]
+    for k in range(-150, 130):
+        b = 2.0**k
+        out += [b, -b, b * (1 - 2**-25), b * (1 + 2**-24), b * (1 - 2**-24), b * (1 - 2**-26)]
+    return out
+
+
+def test_the_native_float_rounding_is_the_struct_modules():
+    """carith.f32's own body (native double arithmetic when compiled; interpreted, the name
+    is struct_f32) rounds every case as struct's "<f" conversion does, sign and all."""
+    import math
+
+    from robox.firmware.carith import native_f32, struct_f32
+
+    def key(v: float) -> tuple:
+        return ("nan",) if v != v else (v, math.copysign(1.0, v))
+
+    cases = _float_cases()
+    assert [key(native_f32(v)) for v in cases] == [key(struct_f32(v)) for v in cases]
