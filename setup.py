@@ -5,14 +5,22 @@ import os
 
 from setuptools import setup
 
-# The firmware model's per-pass work: the step interrupt and block queue, segmenting and
-# positions, heaters, C arithmetic and line parsing, the machine the steps move, the clock.
+# The firmware model's per-pass work: the loop, the step interrupt and block queue,
+# segmenting and positions, G-code, commands, EEPROMs, heaters, C arithmetic and line
+# parsing, the machine the steps move, the chips, the clock.
 NATIVE_MODULES = [
     "robox/firmware/carith.py",
     "robox/firmware/cline.py",
     "robox/firmware/motion.py",
     "robox/firmware/position.py",
     "robox/firmware/heaters.py",
+    "robox/firmware/main.py",
+    "robox/firmware/gcode.py",
+    "robox/firmware/command.py",
+    "robox/firmware/eeprom.py",
+    "robox/firmware/parameters.py",
+    "robox/firmware/error_flags.py",
+    "robox/firmware/user_interface.py",
     "robox/hardware/machine.py",
     "robox/hardware/clock.py",
 ]

@@ -15,6 +15,13 @@ MODULES = (
     "robox.firmware.motion",
     "robox.firmware.position",
     "robox.firmware.heaters",
+    "robox.firmware.main",
+    "robox.firmware.gcode",
+    "robox.firmware.command",
+    "robox.firmware.eeprom",
+    "robox.firmware.parameters",
+    "robox.firmware.error_flags",
+    "robox.firmware.user_interface",
     "robox.hardware.machine",
     "robox.hardware.clock",
 )

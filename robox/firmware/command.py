@@ -25,9 +25,15 @@ What follows from the firmware's handling, and a host can see:
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
 from robox.firmware.gcode import Wait, Waits, is_reporting
 from robox.formats.protocol import PAUSE_MASK, PAUSE_MASK_CONNECTED, ErrorBit
 from robox.formats.sdcard import ID_SIZE
+
+if TYPE_CHECKING:
+    from robox.firmware.error_flags import ErrorFlags
 
 RECEIVE_BUFFER = 1024
 HOST_CONNECTED_S = 5.0
@@ -47,7 +53,11 @@ VARIABLE = {0x92: (12, 8, 4), 0x95: (4, 0, 4), 0xA0: (4, 2, 2), 0xA2: (4, 2, 2),
 _HEX_PREFIX = (b"0x", b"0X")
 
 
-def get_hex(field: bytes) -> int:
+def _no_reply(response: bytes) -> None:
+    """Where a line's response goes before any line has run."""
+
+
+def get_hex(field: bytes | bytearray) -> int:
     """The firmware's get_hex: strtoul(field, 16) over the field as a C string."""
     text = bytes(field).split(b"\0", 1)[0]
     i = 0
@@ -81,15 +91,16 @@ class Command:
         self.robox_mode = False
         self.last_ack_report = self.fw.clock.now
         self.memory = bytearray(MEMORY_SIZE)  # the simulated address space of 0xf0
-        self.pending_after_reply = None  # reset or reprogram once the reply has left
+        # reset or reprogram once the reply has left
+        self.pending_after_reply: Callable[[], object] | None = None
         self.line: Waits | None = None  # a line running inside this object
-        self.line_reply = None  # how its response is sent
+        self.line_reply: Callable[[bytes], None] = _no_reply  # how its response is sent
         self.waiting: Wait | None = None
         self.deaf = False
 
     # ------------------------------------------------------------ errors
     @property
-    def errors(self):
+    def errors(self) -> ErrorFlags:
         return self.fw.errors
 
     def host_connected(self) -> bool:
@@ -143,7 +154,9 @@ class Command:
     def _drive_line(self) -> bool:
         """One step of the line under way; True once it has finished (and answered)."""
         try:
-            self.waiting = next(self.line)
+            line = self.line
+            assert line is not None
+            self.waiting = next(line)
             return False
         except StopIteration as done:
             self.line = None
@@ -155,7 +168,7 @@ class Command:
         if not self.fw.hw.usb.device_send(reply):
             self.errors.set(ErrorBit.USB_TX)
 
-    def after_reply(self, action) -> None:
+    def after_reply(self, action: Callable[[], object]) -> None:
         """Run `action` once the reply now in flight has been read by the host."""
         self.pending_after_reply = action
 

@@ -22,6 +22,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import TYPE_CHECKING
 
 from robox.firmware.error_flags import ErrorFlags
 from robox.formats import float8
@@ -38,6 +39,9 @@ from robox.formats.eeprom import field as field_named
 from robox.formats.protocol import ErrorBit
 from robox.hardware.clock import SimClock
 from robox.hardware.eeprom import EepromBus
+
+if TYPE_CHECKING:
+    from robox.firmware.main import Firmware
 
 #: No acknowledged transaction for this long: the EEPROM is gone.
 TIMEOUT_S = 0.2
@@ -100,7 +104,7 @@ class Eeproms:
         #: Called with the EepromIndex when a VALID EEPROM is lost.
         self.on_lost: list[Callable[[EepromIndex], None]] = []
         #: The firmware that owns this object (None when run alone, as by `eeprom set`).
-        self.firmware = None
+        self.firmware: Firmware | None = None
         self.initialise()
 
     def initialise(self) -> None:
@@ -362,7 +366,8 @@ class Eeproms:
         return state.status != Status.VALID or state.verified_banks >= 2
 
     def all_quiet(self) -> bool:
-        return self.quiet(0) and self.quiet(1) and self.quiet(2)
+        return self.quiet(EepromIndex.HEAD) and self.quiet(EepromIndex.REEL0) and \
+            self.quiet(EepromIndex.REEL1)
 
     def run_inert_passes(self, dt: float, most: int) -> int:
         """Run up to `most` passes of `dt` (the clock moved on pass by pass) in which this

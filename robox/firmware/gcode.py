@@ -348,7 +348,9 @@ class Job:
 
     def _drive(self) -> None:
         try:
-            self.waiting = next(self.current)
+            step = self.current
+            assert step is not None
+            self.waiting = next(step)
         except StopIteration:
             self.current = None
             self.waiting = None

@@ -13,6 +13,7 @@ counted, not run (docs/firmware-model.md, "The loop").
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from robox.firmware.command import Command
 from robox.firmware.eeprom import Eeproms
@@ -69,6 +70,7 @@ class Firmware:
         self.hw = hw
         self.clock = hw.clock
         self.resets = 0
+        self.whole_passes = 0  # do_everything_else() run, all power-ups together
         self.power_up()
 
     # ------------------------------------------------------------ registry
@@ -82,16 +84,18 @@ class Firmware:
         self.events: list[tuple[str, object]] = []
         self.reset_requested = False
         hw = self.hw
-        self.objects = {
-            "parameters": Parameters(self), "hours": HoursCounter(self),
-            "eeproms": Eeproms(hw.eeprom_bus, hw.clock, self.errors),
-            "command": Command(self), "job": Job(self), "heaters": Heaters(self),
-            "motion": Motion(self), "position": Position(self),
-            "file_system": FileSystem(hw.card, self.errors), "reprogram": Reprogram(self),
-            "user_interface": UserInterface(self),
-        }
-        for name, obj in self.objects.items():
-            setattr(self, name, obj)  # fw.job etc.: the registry's entries, by name
+        self.parameters = Parameters(self)
+        self.hours = HoursCounter(self)
+        self.eeproms = Eeproms(hw.eeprom_bus, hw.clock, self.errors)
+        self.command = Command(self)
+        self.job = Job(self)
+        self.heaters = Heaters(self)
+        self.motion = Motion(self)
+        self.position = Position(self)
+        self.file_system = FileSystem(hw.card, self.errors)
+        self.reprogram = Reprogram(self)
+        self.user_interface = UserInterface(self)
+        self.objects: dict[str, Any] = {name: getattr(self, name) for name in POWER_UP_ORDER}
         self.eeproms.firmware = self
         for name in POWER_UP_ORDER:
             self.objects[name].initialise()
@@ -114,6 +118,7 @@ class Firmware:
 
     # ---------------------------------------------------------------- loop
     def do_everything_else(self) -> None:
+        self.whole_passes += 1
         for obj in self._maintained:
             obj.maintain()
 

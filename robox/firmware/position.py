@@ -19,9 +19,10 @@ whole millimetres of filament used come off the reel's remaining length.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
-from robox.firmware.carith import UINT_MAX, cfloor, cmax, cmin, div, f32_accumulate, to_ulong
-from robox.firmware.cline import Line, float32, report_float, strtof
+from robox.firmware.carith import UINT_MAX, cfloor, cmax, cmin, div, f32, f32_accumulate, to_ulong
+from robox.firmware.cline import Line, report_float, strtof
 from robox.firmware.gcode import Waits
 from robox.firmware.motion import FLT_MAX
 from robox.formats.eeprom import EepromIndex
@@ -47,14 +48,15 @@ B_POSITION_WARNING_TOLERANCE = 0.15
 B_POSITION_LOST_TOLERANCE = 0.4
 NORMAL, LOADING_E, UNLOADING_E, LOADING_D, UNLOADING_D = range(5)
 REELS = (EepromIndex.REEL0, EepromIndex.REEL1)
-f32 = float32
 
 
 class Position:
+    #: Called with each queued move's per-axis distances once the position has taken
+    #: them in (an observer outside the firmware, such as `simulate`; None: nobody).
+    on_move: Callable[[list[float]], None] | None
+
     def __init__(self, firmware):
         self.fw = firmware
-        #: Called with each queued move's per-axis distances once the position has taken
-        #: them in (an observer outside the firmware, such as `simulate`; None: nobody).
         self.on_move = None
 
     def initialise(self) -> None:

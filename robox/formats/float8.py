@@ -48,7 +48,7 @@ def encode_checked(value: float, pad: bytes = b" ") -> bytes:
     return encode(value, pad)
 
 
-def parse(raw: bytes) -> float:
+def parse(raw: bytes | bytearray) -> float:
     """Read like strtof: the leading number, 0.0 when there is none."""
     match = _NUMBER.match(bytes(raw))
     if not match:
