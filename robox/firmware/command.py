@@ -29,11 +29,13 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from robox.firmware.gcode import Wait, Waits, is_reporting
+from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import PAUSE_MASK, PAUSE_MASK_CONNECTED, ErrorBit
 from robox.formats.sdcard import ID_SIZE
 
 if TYPE_CHECKING:
     from robox.firmware.error_flags import ErrorFlags
+    from robox.firmware.main import Firmware
 
 RECEIVE_BUFFER = 1024
 HOST_CONNECTED_S = 5.0
@@ -83,7 +85,7 @@ def put_hex(value: int, digits: int) -> bytes:
 class Command:
     """Robox and Pronterface protocols on the USB link."""
 
-    def __init__(self, firmware):
+    def __init__(self, firmware: Firmware):
         self.fw = firmware
 
     def initialise(self) -> None:
@@ -241,11 +243,11 @@ class Command:
         elif code == 0x98:
             fw.job.pause_resume(p[:1])
         elif code in (0xA0, 0xA2, 0xA4):
-            index = (code - 0xA0) // 2
+            index = EepromIndex((code - 0xA0) // 2)
             address, count = get_hex(p[:2]) & 0xFFFF, get_hex(p[2:4]) & 0xFFFF
             fw.eeproms.host_write(index, address, p[4 : 4 + count])
         elif code in (0xA1, 0xA3, 0xA5):
-            index = (code - 0xA1) // 2
+            index = EepromIndex((code - 0xA1) // 2)
             self.send(bytes([(0xE2, 0xE6, 0xE8)[index]]) + fw.eeproms.host_read(index))
             return
         elif code == 0xB0:
@@ -286,7 +288,7 @@ class Command:
             self.send(b"\xf0" + self._memory(p))
             return
         elif code in (0xF8, 0xF9, 0xFA):
-            fw.eeproms.format(code - 0xF8)
+            fw.eeproms.format(EepromIndex(code - 0xF8))
         elif code == 0xFB:
             self.send(b"\xfb" + fw.debug_text().encode("ascii", "replace")[:256].ljust(256, b"\0"))
             return

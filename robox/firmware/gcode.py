@@ -23,11 +23,14 @@ from __future__ import annotations
 
 from collections.abc import Generator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from robox.firmware.carith import f32, to_ulong
 from robox.firmware.cline import Line, strtol
 from robox.formats.protocol import ErrorBit
+
+if TYPE_CHECKING:
+    from robox.firmware.main import Firmware
 
 BUFFER_SIZE = 1024
 LINE_LIMIT = BUFFER_SIZE // 2
@@ -86,7 +89,7 @@ def is_reporting(text: bytes) -> bool:
 
 
 class Job:
-    def __init__(self, firmware):
+    def __init__(self, firmware: Firmware):
         self.fw = firmware
 
     def initialise(self) -> None:

@@ -23,6 +23,7 @@ from robox.formats.protocol import ErrorBit
 
 if TYPE_CHECKING:
     from robox.firmware.eeprom import Eeproms
+    from robox.firmware.main import Firmware
 
 HEAD, REEL0, REEL1 = EepromIndex.HEAD, EepromIndex.REEL0, EepromIndex.REEL1
 SAMPLE_S = 1.0
@@ -96,7 +97,7 @@ def time_to_target(target: float, now: float, ambient: float, approach) -> float
 
 
 class Heaters:
-    def __init__(self, firmware):
+    def __init__(self, firmware: Firmware):
         self.fw = firmware
 
     def initialise(self) -> None:

@@ -43,8 +43,6 @@ DEFAULT_REVISION = "unknown"
 
 POWER_UP_ORDER = ("parameters", "hours", "eeproms", "command", "job", "heaters", "motion",
                   "position", "file_system", "reprogram", "user_interface")
-MAINTAIN_ORDER = ("motion", "eeproms", "file_system", "command", "user_interface", "heaters",
-                  "hours")
 
 
 @dataclass
@@ -99,7 +97,6 @@ class Firmware:
         self.eeproms.firmware = self
         for name in POWER_UP_ORDER:
             self.objects[name].initialise()
-        self._maintained = [self.objects[name] for name in MAINTAIN_ORDER]
         image = hw.flash.read(0, len(IMAGE_PAGES) * PAGE_SIZE)
         pages = flashed_image_pages(image)
         self.revision = image_revision(image[: pages * PAGE_SIZE]) or DEFAULT_REVISION
@@ -118,9 +115,16 @@ class Firmware:
 
     # ---------------------------------------------------------------- loop
     def do_everything_else(self) -> None:
+        """One pass of the loop's objects, in the firmware's order (direct calls: compiled,
+        each is a native call)."""
         self.whole_passes += 1
-        for obj in self._maintained:
-            obj.maintain()
+        self.motion.maintain()
+        self.eeproms.maintain()
+        self.file_system.maintain()
+        self.command.maintain()
+        self.user_interface.maintain()
+        self.heaters.maintain()
+        self.hours.maintain()
 
     def maintain_job(self) -> None:
         if not self.command.busy_line():  # the printer is still inside maintain_commands

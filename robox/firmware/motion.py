@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from typing import TYPE_CHECKING, Any
 
 from robox.firmware.carith import (
     cmax,
@@ -47,6 +48,9 @@ from robox.firmware.carith import sqrt as csqrt
 from robox.firmware.gcode import Wait, Waits, wait_for
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, X, Y, Z
+
+if TYPE_CHECKING:
+    from robox.firmware.main import Firmware
 
 BUFFER_SIZE = 16
 MASK = BUFFER_SIZE - 1
@@ -104,14 +108,14 @@ class Motion:
     interrupts: i64
     switch_abandon_counter: i64
 
-    def __init__(self, firmware):
+    def __init__(self, firmware: Firmware):
         self.fw = firmware
 
     # ------------------------------------------------------------ set-up
     def initialise(self) -> None:
         fw = self.fw
         self.machine = fw.hw.machine
-        self.pa = fw.parameters.values
+        self.pa: dict[str, Any] = fw.parameters.values
         self.set_acceleration(None)
         self.speed_x4k = MIN_SPEED << 12
         self.timer_period = IDLE_PERIOD

@@ -9,6 +9,7 @@ defaults are used instead.
 from __future__ import annotations
 
 import struct
+from typing import TYPE_CHECKING
 
 from robox.firmware.carith import to_uchar
 from robox.firmware.cline import Line, float32
@@ -20,6 +21,9 @@ from robox.formats.firmware import (
     PARAMETER_PAGES,
     UNIQUE_ID_PAGE,
 )
+
+if TYPE_CHECKING:
+    from robox.firmware.main import Firmware
 
 AXES = "XYZEDB"
 STORE = PARAMETER_PAGES[0] * PAGE_SIZE
@@ -73,7 +77,7 @@ class Parameters:
     """The firmware's parameters (`pa`): factory settings, the G-codes that change them,
     M500/M501/M502 and M503's text, byte for byte."""
 
-    def __init__(self, firmware):
+    def __init__(self, firmware: Firmware):
         self.fw = firmware
 
     def initialise(self) -> None:
@@ -245,7 +249,7 @@ class HoursCounter:
     again (maintain_hours_counter in parameters.c). A power cut during a job loses
     that job's time; one during the page write leaves whatever the page then holds."""
 
-    def __init__(self, firmware):
+    def __init__(self, firmware: Firmware):
         self.fw = firmware
 
     def initialise(self) -> None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from robox.firmware.carith import UINT_MAX, cfloor, cmax, cmin, div, f32, f32_accumulate, to_ulong
 from robox.firmware.cline import Line, report_float, strtof
@@ -28,6 +29,9 @@ from robox.firmware.motion import FLT_MAX
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, X, Y, Z
+
+if TYPE_CHECKING:
+    from robox.firmware.main import Firmware
 
 DEFAULT_FEED_RATE = 10.0  # units/s
 SEGMENT_MM = 2.0
@@ -55,13 +59,13 @@ class Position:
     #: them in (an observer outside the firmware, such as `simulate`; None: nobody).
     on_move: Callable[[list[float]], None] | None
 
-    def __init__(self, firmware):
+    def __init__(self, firmware: Firmware):
         self.fw = firmware
         self.on_move = None
 
     def initialise(self) -> None:
         self.motion = self.fw.motion
-        self.pa = self.fw.parameters.values
+        self.pa: dict[str, Any] = self.fw.parameters.values
         self.feed_rate = DEFAULT_FEED_RATE
         self.feed_multiplier = [1.0, 1.0]
         self.feed_multiplier_select = 0

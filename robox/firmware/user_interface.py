@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from robox.firmware.main import Firmware
+
 
 class UserInterface:
-    def __init__(self, firmware):
+    def __init__(self, firmware: Firmware):
         self.fw = firmware
 
     def initialise(self) -> None:
