@@ -73,6 +73,8 @@ def f32(value: float) -> float:
     normal number's nearest 24-bit neighbour; only a tie (the other neighbour, as far
     on the other side, has 24 bits too), a subnormal, a huge, infinite or NaN value goes
     to struct_f32, which rounds ties to even. Interpreted, the name is struct_f32."""
+    if value == 0.0:
+        return value  # either zero, its sign kept
     a = abs(value)
     if _F32_TINY <= a < _F32_BIG:
         c = value * _SPLIT
