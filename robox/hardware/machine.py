@@ -52,6 +52,11 @@ def _steps(axis: int, mm: float) -> int:
     return round(mm * STEPS_PER_MM[axis])
 
 
+# each axis's microsteps from the drive to the filament sensor and to the nozzle
+SENSOR_STEPS = tuple(_steps(axis, SENSOR_MM) for axis in range(len(STEPS_PER_MM)))
+NOZZLE_STEPS = tuple(_steps(axis, NOZZLE_MM) for axis in range(len(STEPS_PER_MM)))
+
+
 @dataclass
 class Filament:
     """A length of filament in an extruder's path, in that extruder's microsteps."""
@@ -159,7 +164,7 @@ class Machine:
         f = self.filament[axis]
         if f is None or not f.tail <= 0 <= f.tip:
             return  # nothing under the drive
-        nozzle = _steps(axis, NOZZLE_MM)
+        nozzle = NOZZLE_STEPS[axis]
         moved = n
         if n > 0 and f.tip + n > nozzle:
             if self.nozzle_hot(axis):
@@ -191,14 +196,13 @@ class Machine:
 
     def filament_present(self, axis: int) -> bool:
         f = self.filament[axis]
-        sensor = _steps(axis, SENSOR_MM)
+        sensor = SENSOR_STEPS[axis]
         return f is not None and f.tail <= sensor <= f.tip
 
     def actuated(self, axis: int) -> bool:
         """Whether the axis's switch (E, D: the filament sensor) is actuated."""
-        name = AXES[axis]
-        if name in self.stuck:
-            return self.stuck[name]
+        if self.stuck and AXES[axis] in self.stuck:
+            return self.stuck[AXES[axis]]
         if axis == X:
             return self.x <= 0
         if axis == Y:
@@ -215,7 +219,7 @@ class Machine:
 
     def z_top_pin(self) -> int:
         """The Z-top input reads 0 when actuated."""
-        if "Z+" in self.stuck:
+        if self.stuck and "Z+" in self.stuck:
             return int(not self.stuck["Z+"])
         return int(self.nozzle_height() < Z_TOP_MM * STEPS_PER_MM[Z])
 
@@ -251,7 +255,7 @@ class Machine:
         f = self.filament[axis]
         if f is None:
             return NEVER
-        sensor = _steps(axis, SENSOR_MM)
+        sensor = SENSOR_STEPS[axis]
         return min(abs(f.tip - sensor), abs(f.tail - sensor)) + 1
 
     # ------------------------------------------------------------ people
@@ -262,7 +266,7 @@ class Machine:
         self.filament[axis] = Filament(tip=tip, tail=tip - _steps(axis, length_mm))
 
     def nozzle_steps(self, axis: int) -> int:
-        return _steps(axis, NOZZLE_MM)
+        return NOZZLE_STEPS[axis]
 
     def door_unlocked(self) -> bool:
         """The door's latch is released by the carriage beyond Y's travel (G37)."""
