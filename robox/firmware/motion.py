@@ -566,16 +566,28 @@ class Motion:
         # 2 * a * min(length, 2^23) + c, grows with the length (when it cannot wrap).
         need: i64 = -(-top >> 14)
         sure: i64 = 1 << 62
-        if (0x00800000 << 1) * a + c <= U32:
+        # While the radicand cannot wrap it only falls as the length does, and its root
+        # follows from the last one by stepping down (exact, and cheaper than a root).
+        unwrapped = (0x00800000 << 1) * a + c <= U32
+        if unwrapped:
             sure = max(0, -(-(need * need - c) // (2 * a)))
             if sure > 0x00800000:
                 sure = 1 << 62
+        x: i64
+        root: i64 = 0
+        rooted: i64 = -1  # the radicand `root` is the root of (-1: none yet)
         while True:
             length -= 1
             n = s + (period if period < maxp else maxp) * a
             if length < sure:
-                v = isqrt32((((length if length < 0x00800000 else 0x00800000) << 1) * a
-                              + c) & U32) << 14
+                x = (((length if length < 0x00800000 else 0x00800000) << 1) * a + c) & U32
+                if unwrapped and x <= rooted:
+                    while root * root > x:
+                        root -= 1
+                else:
+                    root = isqrt32(x)
+                rooted = x
+                v = root << 14
                 if v < n:
                     n = v
             if top < n:
