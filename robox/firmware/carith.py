@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import math
 import struct
+from typing import Final
 
-INT_MAX = 0x7FFFFFFF
-INT_MIN = -0x80000000
-UINT_MAX = 0xFFFFFFFF
+INT_MAX: Final = 0x7FFFFFFF
+INT_MIN: Final = -0x80000000
+UINT_MAX: Final = 0xFFFFFFFF
 
-_F32 = struct.Struct("<f")
+_F32: Final = struct.Struct("<f")
 
 try:  # a native 64-bit integer where the compiled core is built (robox.native)
     from mypy_extensions import i64
@@ -61,9 +62,9 @@ def struct_f32(value: float) -> float:
         return math.copysign(math.inf, value)
 
 
-_SPLIT = 536870913.0  # 2**29 + 1: Veltkamp's constant, a double's top 24 bits
-_F32_TINY = 1.1754943508222875e-38  # 2**-126, the least normal float
-_F32_BIG = 1.7014118346046923e38  # 2**127
+_SPLIT: Final = 536870913.0  # 2**29 + 1: Veltkamp's constant, a double's top 24 bits
+_F32_TINY: Final = 1.1754943508222875e-38  # 2**-126, the least normal float
+_F32_BIG: Final = 1.7014118346046923e38  # 2**127
 
 
 def f32(value: float) -> float:
@@ -194,7 +195,7 @@ def f32_accumulate(x: float, step: float, count: int) -> float:
     return x
 
 
-_SMALLEST_NORMAL = 2.0 ** -126
+_SMALLEST_NORMAL: Final = 2.0 ** -126
 
 
 def _uniform_grid(x: float) -> tuple[float, float]:

@@ -19,21 +19,22 @@ from __future__ import annotations
 import builtins
 import math
 import re
+from typing import Final
 
 from robox.firmware.carith import f32
 from robox.formats import float8
 
-LONG_MAX = (1 << 63) - 1
-LONG_MIN = -(1 << 63)
-ULONG_MAX = (1 << 64) - 1
-_SPACE = b" \t\n\v\f\r"
-_DEC = re.compile(rb"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
-_HEX = re.compile(rb"([+-]?)0[xX]((?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-fA-F]+))"
+LONG_MAX: Final = (1 << 63) - 1
+LONG_MIN: Final = -(1 << 63)
+ULONG_MAX: Final = (1 << 64) - 1
+_SPACE: Final = b" \t\n\v\f\r"
+_DEC: Final = re.compile(rb"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_HEX: Final = re.compile(rb"([+-]?)0[xX]((?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-fA-F]+))"
                   rb"(?:[pP]([+-]?\d+))?")
-_SPECIAL = re.compile(rb"([+-]?)(inf(?:inity)?|nan(?:\([0-9A-Za-z_]*\))?)", re.IGNORECASE)
-_INT = re.compile(rb"[+-]?\d+")
-_FLOAT32_MAX = 3.4028234663852886e38
-_END = re.compile(rb"[\r\n;(\0]")
+_SPECIAL: Final = re.compile(rb"([+-]?)(inf(?:inity)?|nan(?:\([0-9A-Za-z_]*\))?)", re.IGNORECASE)
+_INT: Final = re.compile(rb"[+-]?\d+")
+_FLOAT32_MAX: Final = 3.4028234663852886e38
+_END: Final = re.compile(rb"[\r\n;(\0]")
 
 
 float32 = f32  # `value` rounded to C float precision (overflow gives infinity, as C does)

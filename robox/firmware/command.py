@@ -26,7 +26,7 @@ What follows from the firmware's handling, and a host can see:
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from robox.firmware.gcode import Wait, Waits, is_reporting
 from robox.formats.eeprom import EepromIndex
@@ -37,22 +37,22 @@ if TYPE_CHECKING:
     from robox.firmware.error_flags import ErrorFlags
     from robox.firmware.main import Firmware
 
-RECEIVE_BUFFER = 1024
-HOST_CONNECTED_S = 5.0
+RECEIVE_BUFFER: Final = 1024
+HOST_CONNECTED_S: Final = 5.0
 
-MEMORY_SIZE = 0x10000
+MEMORY_SIZE: Final = 0x10000
 
 # Commands with no parameters, and the fixed parameter length of the others.
-FIXED = {
+FIXED: Final = {
     0x8F: 16, 0x90: 16, 0x97: 16, 0x91: 8 + 512, 0x93: 0, 0x94: 16, 0x96: 0, 0x98: 1,
     0xA1: 0, 0xA3: 0, 0xA5: 0, 0xB0: 0, 0xB2: 0, 0xB3: 0, 0xB4: 0, 0xB6: 0, 0xBB: 0,
     0xC0: 0, 0xC1: 256, 0xC2: 6, 0xC3: 56, 0xC4: 8, 0xC5: 6, 0xC6: 8, 0xC7: 8, 0xC8: 16,
     0xC9: 16, 0xCA: 1, 0xF8: 0, 0xF9: 0, 0xFA: 0, 0xFB: 0, 0xFC: 0, 0xFD: 0, 0xFE: 0, 0xFF: 0,
 }
 # Commands whose header carries a count: (header length, count offset, count digits)
-VARIABLE = {0x92: (12, 8, 4), 0x95: (4, 0, 4), 0xA0: (4, 2, 2), 0xA2: (4, 2, 2),
+VARIABLE: Final = {0x92: (12, 8, 4), 0x95: (4, 0, 4), 0xA0: (4, 2, 2), 0xA2: (4, 2, 2),
             0xA4: (4, 2, 2), 0xF0: (12, 8, 4)}
-_HEX_PREFIX = (b"0x", b"0X")
+_HEX_PREFIX: Final = (b"0x", b"0X")
 
 
 def _no_reply(response: bytes) -> None:

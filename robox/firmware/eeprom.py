@@ -22,7 +22,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from robox.firmware.error_flags import ErrorFlags
 from robox.formats import float8
@@ -44,21 +44,21 @@ if TYPE_CHECKING:
     from robox.firmware.main import Firmware
 
 #: No acknowledged transaction for this long: the EEPROM is gone.
-TIMEOUT_S = 0.2
+TIMEOUT_S: Final = 0.2
 #: Filament and head-hours bookkeeping period (0.002 h).
-UPDATE_PERIOD_S = 7.2
-QUIET_STEP_S = 0.01
+UPDATE_PERIOD_S: Final = 7.2
+QUIET_STEP_S: Final = 0.01
 
 #: What a head type has: the old type names that have it, and in the "RX" naming scheme
 #: the character position whose digit, masked, must equal a value.
-HEAD_FEATURES = {
+HEAD_FEATURES: Final = {
     "dual_material": ({b"RBX01-DM"}, 7, 3, 2),
     "two_fans": ({b"RBXDV-S3"}, 7, 4, 4),
     "b_axis": ({b"RBX01-SM", b"RBX01-S2", b"RBX01-DM"}, 6, 1, 1),
     "prtd": ({b"RBXDV-S2"}, 6, 4, 4),
 }
 
-ERROR_BIT = {
+ERROR_BIT: Final = {
     EepromIndex.HEAD: ErrorBit.HEAD_EEPROM,
     EepromIndex.REEL0: ErrorBit.REEL0_EEPROM,
     EepromIndex.REEL1: ErrorBit.REEL1_EEPROM,

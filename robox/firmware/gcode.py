@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Generator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from robox.firmware.carith import f32, to_ulong
 from robox.firmware.cline import Line, strtol
@@ -32,12 +32,12 @@ from robox.formats.protocol import ErrorBit
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
 
-BUFFER_SIZE = 1024
-LINE_LIMIT = BUFFER_SIZE // 2
-IDLE_PAUSE_S = 600.0
-IDLE_ABORT_S = 3600.0
-SLIP_COUNT_DECAY_S = 300.0
-REPORTING = {105, 111, 112, 113, 114, 115, 119, 503, 997, 999}
+BUFFER_SIZE: Final = 1024
+LINE_LIMIT: Final = BUFFER_SIZE // 2
+IDLE_PAUSE_S: Final = 600.0
+IDLE_ABORT_S: Final = 3600.0
+SLIP_COUNT_DECAY_S: Final = 300.0
+REPORTING: Final = {105, 111, 112, 113, 114, 115, 119, 503, 997, 999}
 
 
 @dataclass(frozen=True)
@@ -53,7 +53,7 @@ class Wait:
 # would spin do_everything_else(), and may return a value when done.
 Waits = Generator[Wait, None, Any]
 
-NEXT_PASS = Wait()
+NEXT_PASS: Final = Wait()
 
 
 def wait_for(condition, wait: Wait = NEXT_PASS) -> Waits:

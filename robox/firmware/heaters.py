@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from robox.firmware.cline import Line, report_float, strtof
 from robox.firmware.gcode import Wait, Waits
@@ -26,37 +26,42 @@ if TYPE_CHECKING:
     from robox.firmware.main import Firmware
 
 HEAD, REEL0, REEL1 = EepromIndex.HEAD, EepromIndex.REEL0, EepromIndex.REEL1
-SAMPLE_S = 1.0
+SAMPLE_S: Final = 1.0
 # The 1 s sampling starts one loop pass after power-up: the phase at which the recordings
 # of the real firmware see targets clamp and the over-temperature cut-off act (fitted:
 # 0 or 2 ms match fewer recorded sessions than 1 ms).
-SAMPLE_PHASE_S = 0.001
-NOZZLE_TEMP_MARGIN = 0.017
-BED_TEMP_MARGIN = 0.03
-NOZZLE_FLUSH_MARGIN_C = 15.0
-UNLOAD_NOZZLE_TEMPERATURE = 140.0
-UNLOAD_NOZZLE_DWELL_S = 5.0
-NOZZLE_PAUSE_AUTO_OFF_S = 300.0
-HEAD_FAN_OVERRIDE_TEMPERATURE = 60.0
-HEAD_FAN_OVERRIDE_DUTY = int(255 * 0.6)
-HEAD_HOT_TEMPERATURE = 60.0
-HEAD_DEFAULT_LIMIT = 300.0
-HEAD_SHUTDOWN_THRESHOLD = 5.0
-BED_HOT_TEMPERATURE = 60.0
-BED_DROOP_THRESHOLD = 5.0
-MAX_BED_TARGET = 160.0
-MAX_AMBIENT_TARGET = 60.0
+SAMPLE_PHASE_S: Final = 0.001
+NOZZLE_TEMP_MARGIN: Final = 0.017
+BED_TEMP_MARGIN: Final = 0.03
+NOZZLE_FLUSH_MARGIN_C: Final = 15.0
+UNLOAD_NOZZLE_TEMPERATURE: Final = 140.0
+UNLOAD_NOZZLE_DWELL_S: Final = 5.0
+NOZZLE_PAUSE_AUTO_OFF_S: Final = 300.0
+HEAD_FAN_OVERRIDE_TEMPERATURE: Final = 60.0
+HEAD_FAN_OVERRIDE_DUTY: Final = int(255 * 0.6)
+HEAD_HOT_TEMPERATURE: Final = 60.0
+HEAD_DEFAULT_LIMIT: Final = 300.0
+HEAD_SHUTDOWN_THRESHOLD: Final = 5.0
+BED_HOT_TEMPERATURE: Final = 60.0
+BED_DROOP_THRESHOLD: Final = 5.0
+MAX_BED_TARGET: Final = 160.0
+MAX_AMBIENT_TARGET: Final = 60.0
 # time-to-target estimates (final delta above ambient, time constant)
+# (tuples of floats are not Final: mypyc leaves those unset)
 BED_APPROACH = (150.0, 280.0)
 SINGLE_NOZZLE_APPROACH = (253.0, 71.0)
 DUAL_NOZZLE_APPROACH = (276.0, 55.0)
 HIGH_TEMP_NOZZLE_APPROACH = (434.0, 84.0)
 # the firmware's default controller gains (kp, ki, kd)
-GAINS = {"nozzle": (0.08, 0.012, 0.55), "bed": (0.05, 0.006, 1.4), "ambient": (0.1, 0.0, 0.0)}
-NOT_WAITING, BED_COOLING, BED_AT_TEMPERATURE, NOZZLE_AT_TEMPERATURE = 0, 1, 2, 3
-FLT_MAX = 3.4028234663852886e38
-OPEN_THERMISTOR = -40.0
-HOT_FLAG_BYTE = 0  # nonvolatile byte of the card directory: "head was hot"
+GAINS: Final = {"nozzle": (0.08, 0.012, 0.55), "bed": (0.05, 0.006, 1.4),
+                "ambient": (0.1, 0.0, 0.0)}
+NOT_WAITING: Final = 0
+BED_COOLING: Final = 1
+BED_AT_TEMPERATURE: Final = 2
+NOZZLE_AT_TEMPERATURE: Final = 3
+FLT_MAX: Final = 3.4028234663852886e38
+OPEN_THERMISTOR: Final = -40.0
+HOT_FLAG_BYTE: Final = 0  # nonvolatile byte of the card directory: "head was hot"
 
 
 @dataclass

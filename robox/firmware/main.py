@@ -13,7 +13,7 @@ counted, not run (docs/firmware-model.md, "The loop").
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Final
 
 from robox.firmware.command import Command
 from robox.firmware.eeprom import Eeproms
@@ -36,12 +36,12 @@ from robox.hardware.machine import Machine
 from robox.hardware.sdcard import SdCard
 from robox.hardware.usb import UsbLink
 
-PASS_S = 0.001  # simulated duration of one loop pass
-HEATER_STEP_S = 0.25  # longest clock jump while a heater is being waited for
-IDLE_STEP_S = 1.0  # longest clock jump when nothing at all is pending
-DEFAULT_REVISION = "unknown"
+PASS_S: Final = 0.001  # simulated duration of one loop pass
+HEATER_STEP_S: Final = 0.25  # longest clock jump while a heater is being waited for
+IDLE_STEP_S: Final = 1.0  # longest clock jump when nothing at all is pending
+DEFAULT_REVISION: Final = "unknown"
 
-POWER_UP_ORDER = ("parameters", "hours", "eeproms", "command", "job", "heaters", "motion",
+POWER_UP_ORDER: Final = ("parameters", "hours", "eeproms", "command", "job", "heaters", "motion",
                   "position", "file_system", "reprogram", "user_interface")
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from robox.firmware.carith import (
     cmax,
@@ -52,26 +52,29 @@ from robox.hardware.machine import AXES, B, D, E, X, Y, Z
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
 
-BUFFER_SIZE = 16
-MASK = BUFFER_SIZE - 1
-MIN_SPEED = 2
-MAX_SPEED = 1200
-BOARD_MCK = 96_000_000
-TICKS_PER_S = BOARD_MCK // 32
-SPEED_UNITS = BOARD_MCK / (65536.0 * 32.0)  # steps/s per speed unit
-MARGIN_UNITS = int(32.0 * SPEED_UNITS * 0.1)  # the queue's 0.1 s margin
-IDLE_PERIOD = 0x10000 // MIN_SPEED
-FLT_MAX = 3.4028234663852886e38
-FILAMENT_AUTOLOAD_THRESHOLD = 8
-FILAMENT_HOLDOFF_S = 4.0
-Z_SAFE_RAISE = 3.0
-Z_SAFE_LOWER = -20.0
-Z_TOP_DEGLITCH = 10
-U32 = 0xFFFFFFFF
+BUFFER_SIZE: Final = 16
+MASK: Final = BUFFER_SIZE - 1
+MIN_SPEED: Final = 2
+MAX_SPEED: Final = 1200
+BOARD_MCK: Final = 96_000_000
+TICKS_PER_S: Final = BOARD_MCK // 32
+SPEED_UNITS: Final = BOARD_MCK / (65536.0 * 32.0)  # steps/s per speed unit
+MARGIN_UNITS: Final = int(32.0 * SPEED_UNITS * 0.1)  # the queue's 0.1 s margin
+IDLE_PERIOD: Final = 0x10000 // MIN_SPEED
+FLT_MAX: Final = 3.4028234663852886e38
+FILAMENT_AUTOLOAD_THRESHOLD: Final = 8
+FILAMENT_HOLDOFF_S: Final = 4.0
+Z_SAFE_RAISE: Final = 3.0
+Z_SAFE_LOWER: Final = -20.0
+Z_TOP_DEGLITCH: Final = 10
+U32: Final = 0xFFFFFFFF
 
-NORMAL, LOADING, UNLOADING, UNTIL_SLIP = range(4)
-READY_WAIT = Wait(motion="ready")
-EMPTY_WAIT = Wait(motion="empty")
+NORMAL: Final = 0
+LOADING: Final = 1
+UNLOADING: Final = 2
+UNTIL_SLIP: Final = 3
+READY_WAIT: Final = Wait(motion="ready")
+EMPTY_WAIT: Final = Wait(motion="empty")
 
 
 class Block:

@@ -9,7 +9,7 @@ defaults are used instead.
 from __future__ import annotations
 
 import struct
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from robox.firmware.carith import to_uchar
 from robox.firmware.cline import Line, float32
@@ -25,9 +25,9 @@ from robox.formats.firmware import (
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
 
-AXES = "XYZEDB"
-STORE = PARAMETER_PAGES[0] * PAGE_SIZE
-STORE_SIZE = len(PARAMETER_PAGES) * PAGE_SIZE
+AXES: Final = "XYZEDB"
+STORE: Final = PARAMETER_PAGES[0] * PAGE_SIZE
+STORE_SIZE: Final = len(PARAMETER_PAGES) * PAGE_SIZE
 
 
 def amps_to_dac(amps: float) -> int:
@@ -70,7 +70,7 @@ def _defaults() -> dict:
     }
 
 
-_FACTORY = _defaults()
+_FACTORY: Final = _defaults()
 
 
 class Parameters:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from robox.firmware.carith import UINT_MAX, cfloor, cmax, cmin, div, f32, f32_accumulate, to_ulong
 from robox.firmware.cline import Line, report_float, strtof
@@ -33,25 +33,29 @@ from robox.hardware.machine import AXES, B, D, E, X, Y, Z
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
 
-DEFAULT_FEED_RATE = 10.0  # units/s
-SEGMENT_MM = 2.0
-FILAMENT_LOAD_ABANDON = 150.0
-FILAMENT_LOAD_SWITCH_OVERTRAVEL = 5.0
-FILAMENT_LOAD_DISTANCE_TO_SLIP = 100.0
-FILAMENT_LOAD_SPEED_TO_SLIP = 6.66
-FILAMENT_UNLOAD_ABANDON = 550.0
-FILAMENT_UNLOAD_DISTANCE = 35.0
-FILAMENT_SLIP_OVERTRAVEL = 5.0
-FILAMENT_SLIP_RETRY_DISTANCE = 8.3
-DEFAULT_DIAMETER = 1.75
-MAX_GANTRY_ADJUSTMENT = 10.0
-LEVELLING_MIN_X_DELTA = 50.0
-LEVELLING_POINTS = 9
-PARKING_Z = 2.0
-B_POSITION_WARNING_TOLERANCE = 0.15
-B_POSITION_LOST_TOLERANCE = 0.4
-NORMAL, LOADING_E, UNLOADING_E, LOADING_D, UNLOADING_D = range(5)
-REELS = (EepromIndex.REEL0, EepromIndex.REEL1)
+DEFAULT_FEED_RATE: Final = 10.0  # units/s
+SEGMENT_MM: Final = 2.0
+FILAMENT_LOAD_ABANDON: Final = 150.0
+FILAMENT_LOAD_SWITCH_OVERTRAVEL: Final = 5.0
+FILAMENT_LOAD_DISTANCE_TO_SLIP: Final = 100.0
+FILAMENT_LOAD_SPEED_TO_SLIP: Final = 6.66
+FILAMENT_UNLOAD_ABANDON: Final = 550.0
+FILAMENT_UNLOAD_DISTANCE: Final = 35.0
+FILAMENT_SLIP_OVERTRAVEL: Final = 5.0
+FILAMENT_SLIP_RETRY_DISTANCE: Final = 8.3
+DEFAULT_DIAMETER: Final = 1.75
+MAX_GANTRY_ADJUSTMENT: Final = 10.0
+LEVELLING_MIN_X_DELTA: Final = 50.0
+LEVELLING_POINTS: Final = 9
+PARKING_Z: Final = 2.0
+B_POSITION_WARNING_TOLERANCE: Final = 0.15
+B_POSITION_LOST_TOLERANCE: Final = 0.4
+NORMAL: Final = 0
+LOADING_E: Final = 1
+UNLOADING_E: Final = 2
+LOADING_D: Final = 3
+UNLOADING_D: Final = 4
+REELS: Final = (EepromIndex.REEL0, EepromIndex.REEL1)
 
 
 class Position:

@@ -33,19 +33,27 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Final
 
-AXES = "XYZEDB"
-X, Y, Z, E, D, B = range(6)
+AXES: Final = "XYZEDB"
+X: Final = 0
+Y: Final = 1
+Z: Final = 2
+E: Final = 3
+D: Final = 4
+B: Final = 5
+# not Final: mypyc leaves a Final tuple of floats unset (NameError when read)
 STEPS_PER_MM = (133.7, 133.7, 6400.0, 747.0, 747.0, 2500.0)
-ZA_X_MM, ZB_X_MM = -37.546, 251.5
-Z_TOP_MM = 95.0
-INDEX_EDGE_STEPS = 256
-SENSOR_MM = 10.0  # filament sensor after the drive
-NOZZLE_MM = 380.0  # drive to nozzle, through the Bowden tube
-MELT_C = 150.0
-HAND_SPEED_MM_S = 20.0
-DOOR_UNLOCK_Y_MM = 158.0
-NEVER = 1 << 60
+ZA_X_MM: Final = -37.546
+ZB_X_MM: Final = 251.5
+Z_TOP_MM: Final = 95.0
+INDEX_EDGE_STEPS: Final = 256
+SENSOR_MM: Final = 10.0  # filament sensor after the drive
+NOZZLE_MM: Final = 380.0  # drive to nozzle, through the Bowden tube
+MELT_C: Final = 150.0
+HAND_SPEED_MM_S: Final = 20.0
+DOOR_UNLOCK_Y_MM: Final = 158.0
+NEVER: Final = 1 << 60
 
 
 def _steps(axis: int, mm: float) -> int:
@@ -53,8 +61,8 @@ def _steps(axis: int, mm: float) -> int:
 
 
 # each axis's microsteps from the drive to the filament sensor and to the nozzle
-SENSOR_STEPS = tuple(_steps(axis, SENSOR_MM) for axis in range(len(STEPS_PER_MM)))
-NOZZLE_STEPS = tuple(_steps(axis, NOZZLE_MM) for axis in range(len(STEPS_PER_MM)))
+SENSOR_STEPS: Final = tuple(_steps(axis, SENSOR_MM) for axis in range(len(STEPS_PER_MM)))
+NOZZLE_STEPS: Final = tuple(_steps(axis, NOZZLE_MM) for axis in range(len(STEPS_PER_MM)))
 
 
 @dataclass
