@@ -7,7 +7,7 @@ from setuptools import setup
 
 # The firmware model's per-pass work: the loop, the step interrupt and block queue,
 # segmenting and positions, G-code, commands, EEPROMs, heaters, C arithmetic and line
-# parsing, the machine the steps move, the chips, the clock.
+# parsing, the machine the steps move, the EEPROMs' bus, the clock.
 NATIVE_MODULES = [
     "robox/firmware/carith.py",
     "robox/firmware/cline.py",
@@ -22,6 +22,7 @@ NATIVE_MODULES = [
     "robox/firmware/error_flags.py",
     "robox/firmware/user_interface.py",
     "robox/hardware/machine.py",
+    "robox/hardware/eeprom_bus.py",
     "robox/hardware/clock.py",
 ]
 

@@ -23,6 +23,7 @@ MODULES = (
     "robox.firmware.error_flags",
     "robox.firmware.user_interface",
     "robox.hardware.machine",
+    "robox.hardware.eeprom_bus",
     "robox.hardware.clock",
 )
 

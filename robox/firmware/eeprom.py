@@ -38,7 +38,7 @@ from robox.formats.eeprom import (
 from robox.formats.eeprom import field as field_named
 from robox.formats.protocol import ErrorBit
 from robox.hardware.clock import SimClock
-from robox.hardware.eeprom import EepromBus
+from robox.hardware.eeprom_bus import EepromBus
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware

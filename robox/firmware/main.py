@@ -30,7 +30,7 @@ from robox.formats.firmware import IMAGE_PAGES, PAGE_SIZE, flashed_image_pages, 
 from robox.formats.firmware import word_sum as image_sum
 from robox.formats.protocol import ErrorBit
 from robox.hardware.clock import SimClock
-from robox.hardware.eeprom import EepromBus
+from robox.hardware.eeprom_bus import EepromBus
 from robox.hardware.flash import Flash
 from robox.hardware.machine import Machine
 from robox.hardware.sdcard import SdCard

@@ -8,7 +8,7 @@ does not acknowledge: the transaction returns None / False and changes nothing.
 from __future__ import annotations
 
 from robox.errors import PowerCut
-from robox.formats.eeprom import CHIP_SIZE, EepromIndex
+from robox.formats.eeprom import CHIP_SIZE
 from robox.hardware.clock import SimClock
 from robox.hardware.faults import EepromFaultPlan
 
@@ -95,29 +95,3 @@ class EepromChip:
         self.data[cell] = value
         self._busy_until = self._now() + self.write_cycle
         return True
-
-
-class EepromBus:
-    """The printer's I2C bus: head and reel 0 sockets, and reel 1 behind the dual-reel
-    adaptor's multiplexer (absent unless an adaptor is fitted)."""
-
-    def __init__(self, head: EepromChip | None = None, reel0: EepromChip | None = None,
-                 reel1: EepromChip | None = None, mux_present: bool = False):
-        self.sockets: list[EepromChip | None] = [head, reel0, reel1]
-        self.mux_present = mux_present
-
-    def chip(self, index: EepromIndex) -> EepromChip | None:
-        if index == EepromIndex.REEL1 and not self.mux_present:
-            return None
-        return self.sockets[index]
-
-    def insert(self, index: EepromIndex, chip: EepromChip | None) -> None:
-        self.sockets[index] = chip
-
-    def read(self, index: EepromIndex, address: int) -> int | None:
-        chip = self.chip(index)
-        return None if chip is None else chip.read(address)
-
-    def write(self, index: EepromIndex, address: int, value: int) -> bool:
-        chip = self.chip(index)
-        return False if chip is None else chip.write(address, value)

@@ -17,7 +17,8 @@ from robox.firmware.error_flags import ErrorFlags
 from robox.formats import eeprom as fmt
 from robox.formats.eeprom import CHIP_SIZE, DATA_SIZE, EepromIndex
 from robox.hardware.clock import SimClock
-from robox.hardware.eeprom import EepromBus, EepromChip
+from robox.hardware.eeprom import EepromChip
+from robox.hardware.eeprom_bus import EepromBus
 
 #: Loop passes allowed for a load or a rewrite of both banks (generous).
 MAX_PASSES = 100_000

@@ -21,7 +21,8 @@ from robox.firmware.main import Firmware, Hardware
 from robox.formats.eeprom import CHIP_SIZE, EepromIndex
 from robox.formats.firmware import FLASH_SIZE
 from robox.formats.protocol import reply_length
-from robox.hardware.eeprom import EepromBus, EepromChip
+from robox.hardware.eeprom import EepromChip
+from robox.hardware.eeprom_bus import EepromBus
 from robox.hardware.flash import Flash
 from robox.hardware.sdcard import SdCard
 from robox.hardware.storage import FileStorage, MemoryStorage

@@ -15,7 +15,8 @@ from robox.firmware.error_flags import ErrorFlags
 from robox.formats import eeprom as fmt
 from robox.formats.eeprom import DATA_SIZE, EepromIndex
 from robox.hardware.clock import SimClock
-from robox.hardware.eeprom import EepromBus, EepromChip
+from robox.hardware.eeprom import EepromChip
+from robox.hardware.eeprom_bus import EepromBus
 from robox.hardware.faults import EepromFaultPlan
 
 REEL = EepromIndex.REEL0

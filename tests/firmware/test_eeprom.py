@@ -9,7 +9,8 @@ from robox.formats import float8
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
 from robox.hardware.clock import SimClock
-from robox.hardware.eeprom import EepromBus, EepromChip
+from robox.hardware.eeprom import EepromChip
+from robox.hardware.eeprom_bus import EepromBus
 
 REEL = EepromIndex.REEL0
 PASS_S = 0.001

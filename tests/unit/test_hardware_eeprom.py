@@ -2,7 +2,8 @@
 
 from robox.formats.eeprom import EepromIndex
 from robox.hardware.clock import SimClock
-from robox.hardware.eeprom import WRITE_CYCLE_S, EepromBus, EepromChip
+from robox.hardware.eeprom import WRITE_CYCLE_S, EepromChip
+from robox.hardware.eeprom_bus import EepromBus
 from robox.hardware.faults import EepromFaultPlan
 
 
