@@ -30,7 +30,7 @@ ULONG_MAX: Final = (1 << 64) - 1
 _SPACE: Final = b" \t\n\v\f\r"
 _DEC: Final = re.compile(rb"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _HEX: Final = re.compile(rb"([+-]?)0[xX]((?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-fA-F]+))"
-                  rb"(?:[pP]([+-]?\d+))?")
+                         rb"(?:[pP]([+-]?\d+))?")
 _SPECIAL: Final = re.compile(rb"([+-]?)(inf(?:inity)?|nan(?:\([0-9A-Za-z_]*\))?)", re.IGNORECASE)
 _INT: Final = re.compile(rb"[+-]?\d+")
 _FLOAT32_MAX: Final = 3.4028234663852886e38

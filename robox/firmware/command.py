@@ -51,7 +51,7 @@ FIXED: Final = {
 }
 # Commands whose header carries a count: (header length, count offset, count digits)
 VARIABLE: Final = {0x92: (12, 8, 4), 0x95: (4, 0, 4), 0xA0: (4, 2, 2), 0xA2: (4, 2, 2),
-            0xA4: (4, 2, 2), 0xF0: (12, 8, 4)}
+                   0xA4: (4, 2, 2), 0xF0: (12, 8, 4)}
 _HEX_PREFIX: Final = (b"0x", b"0X")
 
 

@@ -41,8 +41,8 @@ HEATER_STEP_S: Final = 0.25  # longest clock jump while a heater is being waited
 IDLE_STEP_S: Final = 1.0  # longest clock jump when nothing at all is pending
 DEFAULT_REVISION: Final = "unknown"
 
-POWER_UP_ORDER: Final = ("parameters", "hours", "eeproms", "command", "job", "heaters", "motion",
-                  "position", "file_system", "reprogram", "user_interface")
+POWER_UP_ORDER: Final = ("parameters", "hours", "eeproms", "command", "job", "heaters",
+                         "motion", "position", "file_system", "reprogram", "user_interface")
 
 
 @dataclass
