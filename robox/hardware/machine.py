@@ -209,8 +209,9 @@ class Machine:
 
     def actuated(self, axis: int) -> bool:
         """Whether the axis's switch (E, D: the filament sensor) is actuated."""
-        if self.stuck and AXES[axis] in self.stuck:
-            return self.stuck[AXES[axis]]
+        name = AXES[axis]
+        if name in self.stuck:
+            return self.stuck[name]
         if axis == X:
             return self.x <= 0
         if axis == Y:
@@ -227,7 +228,7 @@ class Machine:
 
     def z_top_pin(self) -> int:
         """The Z-top input reads 0 when actuated."""
-        if self.stuck and "Z+" in self.stuck:
+        if "Z+" in self.stuck:
             return int(not self.stuck["Z+"])
         return int(self.nozzle_height() < Z_TOP_MM * STEPS_PER_MM[Z])
 

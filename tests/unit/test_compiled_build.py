@@ -33,12 +33,12 @@ def _compiler() -> str | None:
     return shutil.which(cc)
 
 
-def _copy_sources(dest: Path) -> None:
-    skip = shutil.ignore_patterns("__pycache__", "*.so", "*.pyd", "build", "*.egg-info")
-    for name in SOURCES:
+def _copy(names: tuple[str, ...], dest: Path, *skip: str) -> None:
+    """The project's files and directories `names` into `dest`, without `skip`."""
+    for name in names:
         src = ROOT / name
         if src.is_dir():
-            shutil.copytree(src, dest / name, ignore=skip)
+            shutil.copytree(src, dest / name, ignore=shutil.ignore_patterns(*skip))
         else:
             shutil.copy2(src, dest / name)
 
@@ -46,7 +46,7 @@ def _copy_sources(dest: Path) -> None:
 @pytest.mark.skipif(_compiler() is None, reason="needs a C compiler for mypyc")
 def test_the_compiled_core_passes_the_firmware_models_tests(tmp_path):
     src, wheels, site, run = (tmp_path / d for d in ("src", "wheel", "site", "run"))
-    _copy_sources(src)
+    _copy(SOURCES, src, "__pycache__", "*.so", "*.pyd", "build", "*.egg-info")
     env = dict(os.environ, ROBOX_NATIVE="1")
     built = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
                             "-w", str(wheels), str(src)],
@@ -59,13 +59,8 @@ def test_the_compiled_core_passes_the_firmware_models_tests(tmp_path):
 
     # the tests and what they read by path from the project's root; no package sources
     run.mkdir()
-    for name in ("tests", "bench", "buildsys", "setup.py", "pyproject.toml", "README.md"):
-        if (ROOT / name).is_dir():
-            shutil.copytree(ROOT / name, run / name,
-                            ignore=shutil.ignore_patterns("__pycache__", ".cache"))
-        else:
-            shutil.copy2(ROOT / name, run / name)
-    shutil.copytree(ROOT / "robox" / "data", run / "robox" / "data")
+    _copy(("tests", "bench", "buildsys", "setup.py", "pyproject.toml", "README.md",
+           "robox/data"), run, "__pycache__", ".cache")
     env = {k: v for k, v in os.environ.items() if k != "ROBOX_NATIVE"}
     env["PYTHONPATH"] = str(site)
 
