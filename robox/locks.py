@@ -19,11 +19,13 @@ import contextlib
 import fcntl
 import json
 import os
+import time
 from pathlib import Path
 
 from robox.errors import RoboxError
 
 LOCK_NAME = "printer.lock"
+RECORD_WAIT_S = 1.0  # how long a reader waits for a new holder to write its record
 
 
 class InUse(RoboxError):
@@ -90,9 +92,12 @@ class DirectoryLock:
         self._write()
 
     def _write(self) -> None:
+        # written over the old record, then cut to length: the file is never empty
+        # while held, so a reader sees the old record, the new one, or (for the
+        # moment between the two calls, if the new one is shorter) neither whole
         data = json.dumps(self.record).encode() + b"\n"
-        os.ftruncate(self.fd, 0)
         os.pwrite(self.fd, data, 0)
+        os.ftruncate(self.fd, len(data))
 
     def release(self) -> None:
         if self.fd is not None:
@@ -112,7 +117,11 @@ def describe_holder(record: dict | None) -> str:
 
 
 def read_record(directory: Path) -> dict | None:
-    """The live holder's record of a state directory, or None when nobody holds it."""
+    """The live holder's record of a state directory, or None when nobody holds it.
+
+    A lock taken a moment ago has no record yet, and a record being rewritten can be
+    caught half-way: both are read again, briefly, before the holder is reported
+    as one whose record is unknown ({})."""
     path = Path(directory) / LOCK_NAME
     try:
         fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
@@ -121,16 +130,23 @@ def read_record(directory: Path) -> dict | None:
     except OSError as exc:
         raise RoboxError(f"{path}: cannot read: {exc.strerror}") from None
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except BlockingIOError:
-            text = os.pread(fd, 4096, 0)
+        deadline = time.monotonic() + RECORD_WAIT_S
+        while True:
             try:
-                record = json.loads(text)
+                fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except BlockingIOError:
+                pass
+            else:
+                return None  # nobody holds it
+            try:
+                record = json.loads(os.pread(fd, 4096, 0))
             except ValueError:
-                record = {}  # taken a moment ago, not yet written
-            return record if isinstance(record, dict) else {}
-        return None  # nobody holds it
+                record = None
+            if isinstance(record, dict) and "pid" in record:
+                return record
+            if time.monotonic() > deadline:
+                return {}
+            time.sleep(0.002)
     finally:
         os.close(fd)
 
