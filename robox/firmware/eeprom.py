@@ -426,6 +426,44 @@ class Eeproms:
             self._take_reads(state, chip, done)
         return done
 
+    def inert_passes(self, dt: float, most: int) -> int:
+        """How many passes `run_inert_passes(dt, most)` would run from now, found without
+        running them: the loop runs motion ahead only as far as the EEPROMs' steps in
+        the passes it skips are inert."""
+        now = self.clock.now
+        settled = []
+        for state in self.states:
+            if state.status == Status.VALID and state.verified_banks >= 2:
+                settled.append(state)
+                continue
+            chip = self.bus.chip(state.index)
+            if chip is None:
+                if state.status == Status.NOT_PRESENT \
+                        and not (state.counter or state.working_bank or state.writing):
+                    continue
+                return 0
+            most = min(most, self._inert_steps(state, chip, now + dt))
+        if not settled:
+            return most
+        # a settled EEPROM steps every QUIET_STEP_S; the first of its steps found not to
+        # be inert ends the run (each inert step moves it one byte on, so its k-th step
+        # from now is inert while k is below what the first finds)
+        last = [state.last_step for state in settled]
+        left = [-1] * len(settled)
+        t = now
+        for k in range(most):
+            t += dt
+            for j, state in enumerate(settled):
+                if t - last[j] < QUIET_STEP_S:
+                    continue
+                if left[j] < 0:
+                    left[j] = self._inert_steps(state, self.bus.chip(state.index), t)
+                if left[j] == 0:
+                    return k
+                left[j] -= 1
+                last[j] = t
+        return most
+
     def _inert_steps(self, state: EepromState, chip, at: float) -> int:
         """How many steps from a pass at `at` on are acknowledged reads that change
         nothing but this EEPROM's place in its bank (a bank's last byte is left out: its

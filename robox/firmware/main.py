@@ -155,6 +155,15 @@ class Firmware:
                     or command.pending_after_reply or self.job.runnable()
                     or self.reset_requested or self.hours.due())
 
+    def _only_motion_awaited(self) -> bool:
+        """Motion runs and all that waits is a job line waiting on it: room in the queue
+        or the queue empty (no dwell, no heater), with no host transfer crossing."""
+        wait = self.job.waiting
+        return (not self.motion.empty() and not self.hw.usb.arriving
+                and self.job.current is not None and wait is not None
+                and wait.motion is not None and wait.until is None and wait.heater is None
+                and self.command.waiting is None)
+
     def next_step(self, limit: float | None = None) -> float:
         """How far the clock may move before the next pass (see `plan`)."""
         step, passes = self.plan(limit, skip=False)
@@ -173,16 +182,20 @@ class Firmware:
         the only work is light (an EEPROM stepping, a transfer crossing the bus: see
         _run_light_passes), the passes up to a pass short of the next moment any object
         waits for are light, and the last one is whole."""
-        light = False
+        light = stepping = False
         if self._busy_apart_from_light():
             return PASS_S, 1
         if self._light_work():
-            # a line part-way (waiting on a heater, say) looks again at every pass
-            if not self.light_passes or not skip or not self.motion.empty() \
-                    or self.hw.machine.hand_busy() \
-                    or self.job.current is not None or self.command.line is not None:
+            if not self.light_passes or not skip or self.hw.machine.hand_busy() \
+                    or self.command.line is not None:
                 return PASS_S, 1
-            light = True
+            if self.motion.empty() and self.job.current is None:
+                light = True
+            elif self._only_motion_awaited():
+                stepping = True  # motion runs ahead while the EEPROMs' steps are inert
+            else:
+                # a line part-way (waiting on a heater, say) looks again at every pass
+                return PASS_S, 1
         now = self.clock.now
         events = [now + IDLE_STEP_S]
         kind = None
@@ -214,6 +227,10 @@ class Firmware:
             if not skip or not motion.can_run_ahead() or horizon - now < 2 * PASS_S:
                 return PASS_S, 1
             most = int((horizon - now) / PASS_S + 1e-9)
+            if stepping:  # light passes up to the first EEPROM step that is not inert
+                most = min(most, self.eeproms.inert_passes(PASS_S, most - 1) + 1)
+                if most < 2:
+                    return PASS_S, 1
             when = motion.run_ahead(now + most * PASS_S, kind or "empty")
             if when is None:
                 return PASS_S, most

@@ -172,3 +172,86 @@ def test_light_passes_make_power_up_and_uploads_cheap():
         counts[light] = fw.whole_passes - before
     assert counts[False] >= 2 * BANK_SIZE  # a bank loaded and one verified, pass by pass
     assert counts[True] * 8 < counts[False], counts
+
+
+# A job that prints: both axes homed, then moves that extrude (2.4 mm^3 is 1 mm of 1.75 mm
+# filament), long enough that the 7.2 s bookkeeping rewrites the reel's remaining
+# length twice while the head is moving
+PRINT_ID = b"JOBAAAA000000002"
+PRINT = b"G28 X Y\n" + b"".join(
+    b"G1 X%d Y%d E1.5 F%d\n" % (20 + 40 * (i % 2), 20 + (i * 13) % 50, 2400 + 600 * (i % 3))
+    for i in range(160))
+
+
+def printing(light: bool) -> tuple:
+    """The print above from power-up (uploaded while the chips load), a status request
+    every 0.5 s to 17 s: every write to a chip or the card, every reply, each with its
+    moment; then the machine, the interrupts and the EEPROM object as they end."""
+    p = VirtualPrinter(media=fresh())
+    fw = p.firmware
+    fw.light_passes = light
+    log = Log(p)
+    p.supply(log)
+    usb = p.usb
+
+    def ask(frame: bytes) -> None:
+        usb.host_write(frame)
+        p.run_until(lambda: usb.reply_waiting > 0, 1.0, between_lines=False)
+        log.events.append(("reply", usb.host_read(4096), round(fw.clock.now, 9)))
+
+    for frame in [*upload(PRINT_ID, PRINT), b"\x94" + PRINT_ID]:
+        ask(frame)
+    for n in range(1, 35):
+        p.run_until(lambda: False, n * 0.5 - fw.clock.now)
+        ask(b"\xb0")
+    m = p.hw.machine
+    ends = (round(fw.clock.now, 9), m.x, m.y, list(fw.position.position),
+            list(fw.position.extruded_mm), fw.motion.interrupts, fw.job.line_number,
+            fw.job.running, [s.last_ack for s in fw.eeproms.states])
+    return log.events, ends, outcome(p), fw.whole_passes
+
+
+def test_motion_runs_ahead_while_an_eeprom_rewrites_as_pass_by_pass():
+    """While the reel's remaining length is rewritten (about 400 steps, one a pass) and
+    the job waits for room in the motion queue, the interrupts run ahead over the passes
+    whose only other work is an inert EEPROM step (Eeproms.inert_passes): the same
+    writes at the same moments, the same replies, the same machine, as every pass run
+    whole, in a fraction of the passes."""
+    together, whole = printing(True), printing(False)
+    writes = [e for e in whole[0] if e[0] == "write" and e[1] == "chip1"]
+    assert any(e[4] > 7.2 for e in writes) and any(e[4] > 14.4 for e in writes)
+    busy = [e for e in whole[0] if e[0] == "reply" and e[1][:1] == b"\xe1"]
+    assert len(busy) == 34
+    assert together[0] == whole[0]
+    assert together[1] == whole[1] and together[1][7]  # still printing at the end
+    assert together[2] == whole[2]
+    assert together[3] * 2 < whole[3], (together[3], whole[3])
+
+
+@pytest.mark.parametrize("name", [n for n in CASES if not CASES[n][2]])
+def test_inert_passes_says_how_many_passes_run_inert_passes_runs(name):
+    """At every stage of loading, verifying and rewriting (each case's chips), the count
+    predicted without running anything is the count then run; between runs, a whole
+    pass takes the step that ended the last one."""
+    make, faults, _ = CASES[name]
+    p = VirtualPrinter(media=make(fresh()))
+    if faults:
+        faults(p)
+    fw = p.firmware
+    eeproms = fw.eeproms
+    runs = []
+    while not eeproms.all_quiet() and fw.clock.now < END_S:
+        for most in (1, 7, 10_000):
+            before = (fw.clock.now, [(s.counter, s.working_bank, s.last_step)
+                                     for s in eeproms.states])
+            predicted = eeproms.inert_passes(0.001, most)
+            assert (fw.clock.now, [(s.counter, s.working_bank, s.last_step)
+                                   for s in eeproms.states]) == before  # nothing ran
+            if most == 10_000:
+                runs.append(predicted)
+                assert eeproms.run_inert_passes(0.001, most) == predicted
+            else:
+                assert predicted <= most
+        p.firmware.run_pass(0.001)
+    assert eeproms.all_quiet() or name == "reel blank"
+    assert max(runs) > 50  # long runs of reads were predicted, not only single steps
