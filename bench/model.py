@@ -15,7 +15,9 @@ same file (`for line in f: line.split()`) timed in the same run:
    `robox-cli --device sim-once:DIR send-job FILE --wait` in its own process
    (translated, uploaded over the protocol, printed to the end, the state
    saved): lines/s of the slicer's file, the ratio to the trivial loop, peak
-   resident memory.
+   resident memory. With --quick on a 1.8 MB file (69k lines); without, on that
+   file and on a larger, finer tower (12 MB, 427k lines), and the ratio of
+   their peak memories.
 
 Asserts nothing.
 """
@@ -106,18 +108,24 @@ def sliced_gcode(quick: bool, name: str = "tower", extra: tuple = VOLUMETRIC) ->
     return gcode
 
 
-def prusa_gcode(quick: bool) -> Path | None:
-    """The star tower sliced by PrusaSlicer as a user would (cached); None without it."""
+#: PrusaSlicer's towers: name -> height, radius (mm) and outline points per star point.
+#: "quick" is a 1.8 MB file of 69k lines; "large" (taller, wider and with a finer
+#: outline, within the Robox's 210 x 150 x 100 mm) 12 MB of 427k lines.
+PRUSA_TOWERS = {"quick": (20.0, 30.0, 8), "large": (95.0, 45.0, 36)}
+
+
+def prusa_gcode(size: str) -> Path | None:
+    """A star tower sliced by PrusaSlicer as a user would (cached); None without it."""
     CACHE.mkdir(parents=True, exist_ok=True)
-    name = "tower-prusa-quick" if quick else "tower-prusa"
+    name = f"tower-prusa-{size}"
     gcode = CACHE / f"{name}.gcode"
     if gcode.exists():
         return gcode
     if shutil.which("prusa-slicer") is None:
         return None
     stl = CACHE / f"{name}.stl"
-    height = 20.0 if quick else 80.0
-    write_stl(stl, star_tower(height, 30.0, 5, math.pi / 2, int(height)))
+    height, radius, steps = PRUSA_TOWERS[size]
+    write_stl(stl, star_tower(height, radius, 5, math.pi / 2, int(height), steps))
     subprocess.run(["prusa-slicer", "--export-gcode", str(stl), "--output", str(gcode),
                     "--layer-height", "0.2", "--fill-density", "20%", "--perimeters", "3",
                     "--nozzle-diameter", "0.4", "--filament-diameter", "1.75",
@@ -162,8 +170,9 @@ def robox_cli(*args: str) -> tuple[bytes, float]:
     return child.stdout, kb / 1024
 
 
-def whole_path(path: Path) -> None:
-    """robox-cli send-job --wait on a fresh state directory, in its own process."""
+def whole_path(path: Path) -> float:
+    """robox-cli send-job --wait on a fresh state directory, in its own process; the peak
+    resident memory in MB."""
     with open(path, "rb") as f:
         lines = sum(1 for _ in f)
     plain = plain_loop_rate(path)
@@ -181,6 +190,7 @@ def whole_path(path: Path) -> None:
     print(f"  simulated print time {summary['simulated_print_time_s'] / 3600:.2f} h; "
           f"simulated / wall = {summary['simulated_print_time_s'] / wall:,.0f}x; "
           f"peak RSS {peak:.0f} MB; errors {summary['errors'] or 'none'}")
+    return peak
 
 
 def host_text(raw: bytes) -> bytes:
@@ -234,11 +244,16 @@ def main() -> None:
           f"{simulated / wall:,.0f}x")
     print(f"  finished: {('job finished', ident('bench')) in fw.events}; "
           f"filament used {fw.position.extruded_mm[0] / 1000:.2f} m")
-    prusa = prusa_gcode(quick)
-    if prusa is None:
+    sizes = ["quick"] if quick else ["quick", "large"]
+    paths = [prusa_gcode(size) for size in sizes]
+    if None in paths:
         print("PrusaSlicer not found (apt-get install prusa-slicer): whole path not measured")
-    else:
-        whole_path(prusa)
+        return
+    peaks = [whole_path(prusa) for prusa in paths]
+    if len(peaks) == 2:
+        sizes_mb = [p.stat().st_size / 1e6 for p in paths]
+        print(f"  peak RSS, {sizes_mb[1]:.1f} MB job over {sizes_mb[0]:.1f} MB job: "
+              f"{peaks[1] / peaks[0]:.2f}x")
 
 
 if __name__ == "__main__":
