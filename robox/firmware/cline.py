@@ -45,49 +45,56 @@ def report_float(value: float) -> bytes:
     return float8.encode(float32(value), b"\0")
 
 
-def _skip_space(text: bytes) -> int:
-    i = 0
-    while i < len(text) and text[i] in _SPACE:
+def _skip_space(text: bytes, i: int = 0) -> int:
+    n = len(text)
+    while i < n and text[i] in _SPACE:
         i += 1
     return i
 
 
 def strtod(text: bytes) -> tuple[float, int]:
     """C's strtod: the value and the number of bytes consumed (0: no number)."""
-    i = _skip_space(text)
-    match = _HEX.match(text, i)
-    if match:
-        sign, digits, exponent = match.groups()
-        mantissa = digits.decode()
-        value = float.fromhex(("-" if sign == b"-" else "") + "0x" + mantissa +
-                              "p" + (exponent.decode() if exponent else "0")) \
-            if exponent is None or abs(int(exponent)) < 100000 else \
-            (math.inf if int(exponent) > 0 and mantissa.strip("0.") else 0.0)
-        return value, match.end()
+    return _strtod_at(text, 0)
+
+
+def _strtod_at(text: bytes, start: int) -> tuple[float, int]:
+    """strtod over `text` from `start` on (no copy of the rest is made)."""
+    i = _skip_space(text, start)
+    j = i + 1 if i < len(text) and text[i] in b"+-" else i
+    if text[j : j + 2] in (b"0x", b"0X"):  # only then can it be a hexadecimal float
+        match = _HEX.match(text, i)
+        if match:
+            sign, digits, exponent = match.groups()
+            mantissa = digits.decode()
+            value = float.fromhex(("-" if sign == b"-" else "") + "0x" + mantissa +
+                                  "p" + (exponent.decode() if exponent else "0")) \
+                if exponent is None or abs(int(exponent)) < 100000 else \
+                (math.inf if int(exponent) > 0 and mantissa.strip("0.") else 0.0)
+            return value, match.end() - start
     match = _DEC.match(text, i)
     if match:
-        return float(match.group()), match.end()
+        return float(match.group()), match.end() - start
     match = _SPECIAL.match(text, i)
     if match:
         sign, word = match.groups()
         value = math.nan if word[:1] in b"nN" else math.inf
-        return (-value if sign == b"-" else value), match.end()
+        return (-value if sign == b"-" else value), match.end() - start
     return 0.0, 0
 
 
-def _leading_integer(text: bytes) -> int:
-    match = _INT.match(text, _skip_space(text))
+def _leading_integer(text: bytes, start: int = 0) -> int:
+    match = _INT.match(text, _skip_space(text, start))
     return int(match.group()) if match else 0
 
 
-def strtol(text: bytes) -> int:
-    """C's strtol(text, NULL, 10), saturating at the limits of a 64-bit long."""
-    return max(LONG_MIN, min(LONG_MAX, _leading_integer(text)))
+def strtol(text: bytes, start: int = 0) -> int:
+    """C's strtol(text + start, NULL, 10), saturating at the limits of a 64-bit long."""
+    return max(LONG_MIN, min(LONG_MAX, _leading_integer(text, start)))
 
 
-def strtoul(text: bytes) -> int:
-    """C's strtoul(text, NULL, 10): a negative number wraps, overflow saturates."""
-    value = _leading_integer(text)
+def strtoul(text: bytes, start: int = 0) -> int:
+    """C's strtoul(text + start, NULL, 10): a negative number wraps, overflow saturates."""
+    value = _leading_integer(text, start)
     return ULONG_MAX if abs(value) > ULONG_MAX else value & ULONG_MAX
 
 
@@ -105,28 +112,26 @@ class Line:
         end = _END.search(raw)
         self.text = bytes(raw[: end.start()]) if end else bytes(raw)
 
-    def _after(self, letter: str) -> bytes | None:
-        at = self.text.find(letter.encode())
-        return None if at < 0 else self.text[at + 1 :]
-
+    # A parameter is found by its letter's first occurrence (strchr) and read from the
+    # byte after it, in place.
     def has(self, letter: str) -> bool:
-        return letter.encode() in self.text
+        return self.text.find(ord(letter)) >= 0
 
     def has_float(self, letter: str) -> bool:
-        rest = self._after(letter)
-        return rest is not None and strtod(rest)[1] > 0
+        at = self.text.find(ord(letter))
+        return at >= 0 and _strtod_at(self.text, at + 1)[1] > 0
 
     def float(self, letter: str) -> float:
-        rest = self._after(letter)
-        return 0.0 if rest is None else float32(strtod(rest)[0])
+        at = self.text.find(ord(letter))
+        return 0.0 if at < 0 else float32(_strtod_at(self.text, at + 1)[0])
 
     def int(self, letter: str) -> int:
-        rest = self._after(letter)
-        return 0 if rest is None else strtol(rest)
+        at = self.text.find(ord(letter))
+        return 0 if at < 0 else strtol(self.text, at + 1)
 
     def uint(self, letter: str) -> builtins.int:  # `int` here is the method above
-        rest = self._after(letter)
-        return 0 if rest is None else strtoul(rest)
+        at = self.text.find(ord(letter))
+        return 0 if at < 0 else strtoul(self.text, at + 1)
 
     def bool(self, letter: str) -> bool:
         return self.int(letter) != 0
