@@ -289,6 +289,16 @@ class Motion:
         """add_block_to_buffer: queue `moves` (mm per axis, float32) and wait until the
         queue is ready for more; `moves` is rewritten with the distances the steps make
         (all 0 when the move is shorter than a step: it is absorbed into the next)."""
+        if self.queue_block(feed_rate, speed_limit, check_z_top, moves):
+            while not self.ready_for_more():
+                yield READY_WAIT
+
+    def queue_block(self, feed_rate: float, speed_limit: float, check_z_top: bool,
+                    moves: list[float]) -> bool:
+        """add_block_to_buffer up to its wait for room (see add_block): whether a block
+        was queued (if not, the move was shorter than a step and `moves` is all 0).
+        A caller that queues blocks on every pass waits for room itself, sparing a
+        generator per block."""
         pa = self.pa
         spu = [pa["steps_per_unit"][a] for a in AXES]
         steps = [0] * 6
@@ -302,7 +312,7 @@ class Motion:
         if length < 1:
             for i in range(6):
                 moves[i] = 0.0
-            return
+            return False
         blk = self.block[self.buffer_in]
         blk.length = length
         blk.end_speed = 0
@@ -365,7 +375,7 @@ class Motion:
             self.block[prev].end_speed = end_speed
             b = prev
             n -= 1
-        yield from wait_for(self.ready_for_more, READY_WAIT)
+        return True
 
     def steps_for(self, axis: int, move: float, spu: float | None = None) -> int:
         """The whole steps add_block gives `move` mm on `axis` (on B in chunks of 64

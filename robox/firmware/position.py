@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Final
 from robox.firmware.carith import UINT_MAX, cfloor, cmax, cmin, div, f32, f32_accumulate, to_ulong
 from robox.firmware.cline import Line, report_float, strtof
 from robox.firmware.gcode import Waits
-from robox.firmware.motion import FLT_MAX
+from robox.firmware.motion import FLT_MAX, READY_WAIT
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, X, Y, Z
@@ -134,11 +134,21 @@ class Position:
     # ------------------------------------------------------------ moves
     def do_move(self, feed_rate: float, speed_limit: float) -> Waits:
         """Queue the move that brings the position to the destination (travel limits,
-        tool offsets, levelling), then book the distances the steps really make.
-        Returns whether a block was queued (False: every axis was within half a step)."""
+        tool offsets, levelling), wait for room in the queue, then book the distances
+        the steps really make. Returns whether a block was queued (False: every axis was
+        within half a step)."""
+        moves = [0.0] * 6
+        if self._queue_move(feed_rate, speed_limit, moves):
+            motion = self.motion
+            while not motion.ready_for_more():
+                yield READY_WAIT
+        return self._book(moves)
+
+    def _queue_move(self, feed_rate: float, speed_limit: float, moves: list[float]) -> bool:
+        """do_move up to add_block_to_buffer's wait for room: `moves` gets the distances
+        the steps make; whether a block was queued."""
         pa = self.pa
         pos, dest, off = self.position, self.destination, self.tool_offset
-        moves = [0.0] * 6
         for i in (X, Y):
             if self.homing_done[i]:
                 target = cmax(0.0, cmin(self._travel(i), f32(dest[i] + off[i])))
@@ -154,7 +164,11 @@ class Position:
         opening = f32(cmax(0.0, cmin(1.0, dest[B])))
         opening = opening if self.tool == 0 else -opening
         moves[B] = f32(opening - pos[B]) if self.homing_done[B] else 0.0
-        yield from self.motion.add_block(feed_rate, speed_limit, check_z_top, moves)
+        return self.motion.queue_block(feed_rate, speed_limit, check_z_top, moves)
+
+    def _book(self, moves: list[float]) -> bool:
+        """After the wait: the position moves on by what the steps make."""
+        pos = self.position
         for i in range(6):
             pos[i] = f32(pos[i] + moves[i])
         if self.on_move is not None:
@@ -243,19 +257,26 @@ class Position:
             if math.isfinite(booked):
                 self.extruded_mm[n] += booked
         left = segments
+        motion = self.motion
         while left:
             for i in range(6):
                 dest[i] = f32(dest[i] + moves[i])
             left -= 1
+            step = [0.0] * 6
+            # do_move, written out: one generator for the whole line, not one per segment
             if rapid:
-                moved = yield from self.do_move(FLT_MAX, FLT_MAX)
+                queued = self._queue_move(FLT_MAX, FLT_MAX, step)
             elif has_xyz:
                 rate = self.feed_rate
                 if has_edb:
                     rate = f32(rate * self.feed_multiplier[self.feed_multiplier_select])
-                moved = yield from self.do_move(rate, FLT_MAX)
+                queued = self._queue_move(rate, FLT_MAX, step)
             else:
-                moved = yield from self.do_move(FLT_MAX, self.feed_rate)
+                queued = self._queue_move(FLT_MAX, self.feed_rate, step)
+            if queued:
+                while not motion.ready_for_more():
+                    yield READY_WAIT
+            moved = self._book(step)
             if not moved and left > 64:
                 # a move far past the travel or on axes not homed: the firmware spins
                 # through segments that queue nothing; only the destinations change
