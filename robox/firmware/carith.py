@@ -42,7 +42,7 @@ except ImportError:  # otherwise only an annotation: int
 def isqrt32(x: i64) -> i64:
     """math.isqrt() of a whole number below 2**53, in native arithmetic when compiled: the
     double's square root is within one of the answer, and the answer is checked both ways."""
-    r: i64 = int(math.sqrt(x))
+    r: i64 = int(math.sqrt(float(x)))  # float(): compiled, the native square root
     if r * r > x:
         r -= 1
     elif (r + 1) * (r + 1) <= x:

@@ -71,12 +71,23 @@ class Status(IntEnum):
     VALID = 2
 
 
+# The members as module constants, compared by identity: compiled, a class attribute
+# lookup and an enum comparison become a pointer comparison.
+NOT_PRESENT: Final = Status.NOT_PRESENT
+PRESENT: Final = Status.PRESENT
+VALID: Final = Status.VALID
+# the EEPROMs' indices (EepromIndex), as plain numbers for the same reason
+HEAD: Final = 0
+REEL0: Final = 1
+REEL1: Final = 2
+
+
 @dataclass
 class EepromState:
     """What the firmware keeps for one EEPROM."""
 
     index: EepromIndex
-    status: Status = Status.NOT_PRESENT
+    status: Status = NOT_PRESENT
     buffer: bytearray = field(default_factory=lambda: bytearray(BANK_SIZE))
     working_bank: int = 0
     counter: int = 0
@@ -110,7 +121,7 @@ class Eeproms:
     def initialise(self) -> None:
         now = self.clock.now
         self.states = [EepromState(index, last_ack=now) for index in EepromIndex]
-        self.previous = [Status.NOT_PRESENT] * 3
+        self.previous = [NOT_PRESENT] * 3
         self.update_due = now + UPDATE_PERIOD_S
 
     def maintain(self) -> None:
@@ -126,14 +137,14 @@ class Eeproms:
         now = self.clock.now
         statuses = [s.status for s in self.states]
         if statuses != self.previous:
-            appeared = [s == Status.VALID and p != Status.VALID
+            appeared = [s is VALID and p is not VALID
                         for s, p in zip(statuses, self.previous, strict=True)]
-            if appeared[EepromIndex.HEAD]:
+            if appeared[HEAD]:
                 fw.file_system.check_for_head_change(self.head_dual_material())
             if any(appeared):
                 fw.heaters.targets_from_reel()
                 fw.position.filament_info_from_reel()
-        if now - self.states[EepromIndex.HEAD].last_ack >= TIMEOUT_S:
+        if now - self.states[HEAD].last_ack >= TIMEOUT_S:
             fw.heaters.shut_down_head_due_to_eeprom()
         if now >= self.update_due:
             if fw.heaters.head_hot():
@@ -149,11 +160,11 @@ class Eeproms:
             # A settled EEPROM's verify step only reads what it already holds: it is
             # taken at most every QUIET_STEP_S, which still sees an unplug well within
             # the timeout (the spec's "accounted for without being replayed").
-            if now - state.last_step < QUIET_STEP_S and state.status == Status.VALID \
+            if now - state.last_step < QUIET_STEP_S and state.status is VALID \
                     and state.verified_banks >= 2:
                 continue
             state.last_step = now
-            if state.status == Status.NOT_PRESENT and self.bus.chip(state.index) is None \
+            if state.status is NOT_PRESENT and self.bus.chip(state.index) is None \
                     and not (state.counter or state.working_bank or state.writing):
                 # an empty socket already given up: the step's read finds no chip and
                 # its no-ack leaves everything as it is
@@ -167,7 +178,7 @@ class Eeproms:
 
     def _step(self, state: EepromState) -> None:
         address = self._address(state)
-        if state.status == Status.VALID and state.writing:
+        if state.status is VALID and state.writing:
             if not self.bus.write(state.index, address, state.buffer[state.counter]):
                 self._no_ack(state)
                 return
@@ -181,7 +192,7 @@ class Eeproms:
             return
         state.acked = True
         state.last_ack = self.clock.now
-        if state.status == Status.VALID:
+        if state.status is VALID:
             if value == state.buffer[state.counter]:
                 self._advance(state)
             else:
@@ -193,9 +204,9 @@ class Eeproms:
             return
         if eeprom_crc(bytes(state.buffer)) == 0:
             state.verified_banks = 1  # the bank just loaded
-            self._become(state, Status.VALID)
+            self._become(state, VALID)
         elif state.working_bank == 1:
-            self._become(state, Status.PRESENT)
+            self._become(state, PRESENT)
         state.working_bank ^= 1
         state.counter = 0
 
@@ -210,8 +221,8 @@ class Eeproms:
         state.acked = False
         if self.clock.now - state.last_ack < TIMEOUT_S:
             return
-        was_valid = state.status == Status.VALID
-        state.status = Status.NOT_PRESENT
+        was_valid = state.status is VALID
+        state.status = NOT_PRESENT
         state.counter = 0
         state.working_bank = 0
         state.writing = False
@@ -220,9 +231,9 @@ class Eeproms:
                 listener(state.index)
 
     def _become(self, state: EepromState, status: Status) -> None:
-        was_valid = state.status == Status.VALID
+        was_valid = state.status is VALID
         state.status = status
-        if status == Status.VALID and not was_valid:
+        if status is VALID and not was_valid:
             for listener in self.on_valid:
                 listener(state.index)
 
@@ -252,7 +263,7 @@ class Eeproms:
     def host_write(self, index: EepromIndex, address: int, data: bytes) -> bool:
         """Write from the host; bytes beyond address 191 are ignored."""
         state = self.states[index]
-        if state.status != Status.VALID:
+        if state.status is not VALID:
             self.errors.set(ERROR_BIT[index])
             return False
         if address < DATA_SIZE and self._change(state, data, address) and \
@@ -265,7 +276,7 @@ class Eeproms:
     def host_read(self, index: EepromIndex) -> bytes:
         """192 bytes masked to 7 bits; zeros (and the EEPROM's error) when not VALID."""
         state = self.states[index]
-        if state.status != Status.VALID:
+        if state.status is not VALID:
             self.errors.set(ERROR_BIT[index])
             return bytes(DATA_SIZE)
         return mask7(state.data)
@@ -279,16 +290,16 @@ class Eeproms:
         state.writing = False
         state.verified_banks = 0
         # VALID at once; with no chip there, the next pass's timeout takes it away
-        state.status = Status.VALID
+        state.status = VALID
 
     # ------------------------------------------------- firmware's own fields
     def valid(self, index: EepromIndex) -> bool:
-        return self.states[index].status == Status.VALID
+        return self.states[index].status is VALID
 
     def float_at(self, index: EepromIndex, address: int, default: float) -> float:
         """The 8-character number at `address`, as strtof reads it; `default` unless VALID."""
         state = self.states[index]
-        if state.status != Status.VALID:
+        if state.status is not VALID:
             return default
         return float8.parse(bytes(state.buffer[address : address + 8]).split(b"\0", 1)[0])
 
@@ -296,7 +307,7 @@ class Eeproms:
         """Store `value` as printf("%f") cut to 8 characters. Like the firmware, this
         restarts the verify cycle even when the text is unchanged."""
         state = self.states[index]
-        if state.status != Status.VALID or address > DATA_SIZE - 8:
+        if state.status is not VALID or address > DATA_SIZE - 8:
             return
         state.buffer[address : address + 8] = float8.encode(value)
         state.buffer[DATA_SIZE:BANK_SIZE] = struct.pack("<I", eeprom_crc(state.data))
@@ -305,8 +316,8 @@ class Eeproms:
         state.verified_banks = 0
 
     def _head_type(self) -> bytes | None:
-        state = self.states[EepromIndex.HEAD]
-        return bytes(state.buffer[:8]) if state.status == Status.VALID else None
+        state = self.states[HEAD]
+        return bytes(state.buffer[:8]) if state.status is VALID else None
 
     def _head_has(self, feature: str) -> bool:
         name = self._head_type()
@@ -354,20 +365,19 @@ class Eeproms:
 
     def set_float(self, index: EepromIndex, name: str, value: float) -> bool:
         state = self.states[index]
-        if state.status != Status.VALID:
+        if state.status is not VALID:
             return False
         f = field_named(KIND_OF[index], name)
         self._change(state, float8.encode(value), f.offset)
         return True
 
-    def settled(self, index: EepromIndex) -> bool:
+    def settled(self, index: int) -> bool:
         """True unless a VALID EEPROM's chip may still differ from its RAM copy."""
         state = self.states[index]
-        return state.status != Status.VALID or state.verified_banks >= 2
+        return state.status is not VALID or state.verified_banks >= 2
 
     def all_quiet(self) -> bool:
-        return self.quiet(EepromIndex.HEAD) and self.quiet(EepromIndex.REEL0) and \
-            self.quiet(EepromIndex.REEL1)
+        return self.quiet(HEAD) and self.quiet(REEL0) and self.quiet(REEL1)
 
     def run_inert_passes(self, dt: float, most: int) -> int:
         """Run up to `most` passes of `dt` (the clock moved on pass by pass) in which this
@@ -383,12 +393,12 @@ class Eeproms:
         loading = []
         settled = []
         for state in self.states:
-            if state.status == Status.VALID and state.verified_banks >= 2:
+            if state.status is VALID and state.verified_banks >= 2:
                 settled.append(state)
                 continue
             chip = self.bus.chip(state.index)
             if chip is None:
-                if state.status == Status.NOT_PRESENT \
+                if state.status is NOT_PRESENT \
                         and not (state.counter or state.working_bank or state.writing):
                     continue  # an empty socket already given up (see _maintain_chips)
                 return 0
@@ -433,12 +443,12 @@ class Eeproms:
         now = self.clock.now
         settled = []
         for state in self.states:
-            if state.status == Status.VALID and state.verified_banks >= 2:
+            if state.status is VALID and state.verified_banks >= 2:
                 settled.append(state)
                 continue
             chip = self.bus.chip(state.index)
             if chip is None:
-                if state.status == Status.NOT_PRESENT \
+                if state.status is NOT_PRESENT \
                         and not (state.counter or state.working_bank or state.writing):
                     continue
                 return 0
@@ -473,7 +483,7 @@ class Eeproms:
         n = BANK_SIZE - 1 - state.counter
         if chip.faults.unplug_at is not None and chip.faults.unplug_at > chip.transactions:
             n = min(n, chip.faults.unplug_at - chip.transactions - 1)
-        if state.status != Status.VALID or n <= 0:
+        if state.status is not VALID or n <= 0:
             return max(0, n)
         address = self._address(state)
         held = chip.peek_run(address, n)
@@ -490,16 +500,16 @@ class Eeproms:
         now = self.clock.now
         state.acked = True
         state.last_ack = state.last_step = now
-        if state.status == Status.VALID:
+        if state.status is VALID:
             state.counter += n
         else:
             state.buffer[state.counter : state.counter + n] = data
             state.counter += n
 
-    def quiet(self, index: EepromIndex) -> bool:
+    def quiet(self, index: int) -> bool:
         """True when stepping this EEPROM now would change nothing but the time: it is
         settled, or not answering, or answering with no good bank (PRESENT)."""
         state = self.states[index]
-        if state.status == Status.NOT_PRESENT:
+        if state.status is NOT_PRESENT:
             return not state.acked
         return self.settled(index)

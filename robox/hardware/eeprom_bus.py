@@ -6,7 +6,6 @@ firmware model reaches its chips through it on every pass; the chips themselves
 
 from __future__ import annotations
 
-from robox.formats.eeprom import EepromIndex
 from robox.hardware.eeprom import EepromChip
 
 
@@ -19,18 +18,18 @@ class EepromBus:
         self.sockets: list[EepromChip | None] = [head, reel0, reel1]
         self.mux_present = mux_present
 
-    def chip(self, index: EepromIndex) -> EepromChip | None:
-        if index == EepromIndex.REEL1 and not self.mux_present:
+    def chip(self, index: int) -> EepromChip | None:
+        if index == 2 and not self.mux_present:  # reel 1 (EepromIndex.REEL1)
             return None
         return self.sockets[index]
 
-    def insert(self, index: EepromIndex, chip: EepromChip | None) -> None:
+    def insert(self, index: int, chip: EepromChip | None) -> None:
         self.sockets[index] = chip
 
-    def read(self, index: EepromIndex, address: int) -> int | None:
+    def read(self, index: int, address: int) -> int | None:
         chip = self.chip(index)
         return None if chip is None else chip.read(address)
 
-    def write(self, index: EepromIndex, address: int, value: int) -> bool:
+    def write(self, index: int, address: int, value: int) -> bool:
         chip = self.chip(index)
         return False if chip is None else chip.write(address, value)
