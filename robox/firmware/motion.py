@@ -217,7 +217,8 @@ class Motion:
         pa = self.pa
         m = self.machine
         now = self.fw.clock.now
-        for i, axis in ((0, E), (1, D)):
+        for i in range(2):
+            axis = E + i  # then D
             if m.switch_pin(axis) == pa["invert_switch"][AXES[axis]]:  # no filament
                 if now - self.holdoff_since < FILAMENT_HOLDOFF_S or not self.empty():
                     self.autoload_counter[i] = 0
@@ -418,8 +419,13 @@ class Motion:
         v += (nxt.end_speed * nxt.end_speed) >> 4
         end_speed = min(nxt.speed, isqrt32(v & U32) << 2)
         p, q = this.inc, nxt.inc
-        worst = max(abs(p[0] - q[0]), abs(p[1] - q[1]), abs(p[2] - q[2]),
-                    abs(p[3] - q[3]), abs(p[4] - q[4]), abs(p[5] - q[5]))
+        worst: i64 = 0  # the largest change of increment on any axis
+        for k in range(6):
+            d: i64 = p[k] - q[k]
+            if d < 0:
+                d = -d
+            if d > worst:
+                worst = d
         if worst > 0:
             end_speed = min(end_speed, self.max_speed_step // worst)
         return max(MIN_SPEED, min(MAX_SPEED, end_speed))
@@ -509,7 +515,8 @@ class Motion:
 
     def _check_index_wheels(self) -> None:
         m = self.machine
-        for i, axis in ((0, E), (1, D)):
+        for i in range(2):
+            axis = E + i  # then D
             if m.index_wheel(axis) != self.last_index[i]:
                 self.last_index[i] ^= 1
                 self.acc[axis] &= 0xFFFF
@@ -666,7 +673,13 @@ class Motion:
         if watching:
             k = min(k, self.switch_abandon_counter)
         k = min(k, (limit - self.next_tick) // self.timer_period + 1)
-        biggest = max(abs(blk.inc[i]) for i in blk.movers)
+        biggest: i64 = 0
+        for i in blk.movers:
+            inc: i64 = blk.inc[i]
+            if inc < 0:
+                inc = -inc
+            if inc > biggest:
+                biggest = inc
         quiet = m.quiet_steps(self.switch_select if watching else None)
         if quiet < (1 << 59):
             k = min(k, ((quiet - 1) * 65536 - 65535) // biggest)

@@ -47,6 +47,7 @@ STEPS_PER_MM = (133.7, 133.7, 6400.0, 747.0, 747.0, 2500.0)
 ZA_X_MM: Final = -37.546
 ZB_X_MM: Final = 251.5
 Z_TOP_MM: Final = 95.0
+Z_TOP_STEPS: Final = Z_TOP_MM * STEPS_PER_MM[Z]  # where the Z-top switch closes
 INDEX_EDGE_STEPS: Final = 256
 SENSOR_MM: Final = 10.0  # filament sensor after the drive
 NOZZLE_MM: Final = 380.0  # drive to nozzle, through the Bowden tube
@@ -230,7 +231,7 @@ class Machine:
         """The Z-top input reads 0 when actuated."""
         if "Z+" in self.stuck:
             return int(not self.stuck["Z+"])
-        return int(self.nozzle_height() < Z_TOP_MM * STEPS_PER_MM[Z])
+        return int(self.nozzle_height() < Z_TOP_STEPS)
 
     def index_wheel(self, axis: int) -> int:
         return int(self.wheel_base[axis] ^ bool((self.wheel_passed[axis] // INDEX_EDGE_STEPS) & 1))
