@@ -537,9 +537,10 @@ class Motion:
         acc = self.acc
         inc = blk.inc
         for i in blk.movers:
-            v = acc[i]
-            acc[i] = (v + inc[i]) & U32
-            if (v ^ acc[i]) & 0xFFFF0000:
+            v: i64 = acc[i]
+            w: i64 = (v + inc[i]) & U32
+            acc[i] = w
+            if (v ^ w) & 0xFFFF0000:
                 m.step(i, 1 if inc[i] > 0 else -1)
         a: i64 = self.pa["acceleration"]
         v = isqrt32(((min(0x00800000, blk.length - 1) << 1) * a
@@ -565,7 +566,6 @@ class Motion:
         Stops once the speed holds at the block's cruise speed or the floor (a run may
         follow), at the block's end, at `limit` or after `cap` interrupts; a speed that
         holds while the block slows down (the square root's steps) runs on."""
-        acc = self.acc
         a: i64 = self.pa["acceleration"]
         c: i64 = (blk.end_speed * blk.end_speed) >> 4
         top: i64 = blk.speed << 12
@@ -622,12 +622,7 @@ class Motion:
             count += 1
             if settled or count >= most or tick > end:
                 break
-        m = self.machine
-        inc = blk.inc
-        for i in blk.movers:
-            total = (acc[i] & 0xFFFF) + count * inc[i]
-            acc[i] = (acc[i] + count * inc[i]) & U32
-            m.step(i, total >> 16)
+        self._step_movers(blk, count)
         blk.length = length
         self.speed_x4k = s
         self.timer_period = period
@@ -637,6 +632,18 @@ class Motion:
         if length == 0:
             self.buffer_out = (self.buffer_out + 1) & MASK
             self.active = False
+
+    def _step_movers(self, blk: Block, n: i64) -> None:
+        """`n` interrupts' worth of each moving axis's accumulator at once: the carries
+        out of its fraction are the steps it makes (native integers throughout)."""
+        acc = self.acc
+        inc = blk.inc
+        m = self.machine
+        for i in blk.movers:
+            before: i64 = acc[i]
+            moved: i64 = n * inc[i]
+            acc[i] = (before + moved) & U32
+            m.step(i, ((before & 0xFFFF) + moved) >> 16)
 
     def _run_length(self, blk: Block, limit: int, m, cap: int | None) -> int:
         """How many interrupts from now can be done at once (1: one at a time): the speed
@@ -688,11 +695,7 @@ class Motion:
     def _batch(self, blk: Block, k: int, m) -> None:
         """`k` interrupts at a constant speed, no input changing, the block not ending."""
         self._check_index_wheels()
-        acc = self.acc
-        for i in blk.movers:
-            total = (acc[i] & 0xFFFF) + k * blk.inc[i]
-            acc[i] = (acc[i] + k * blk.inc[i]) & U32
-            m.step(i, total >> 16)
+        self._step_movers(blk, k)
         if self.fw.job.abort_flag or self.switch_abandon_counter == 0:
             blk.length -= k
         else:
