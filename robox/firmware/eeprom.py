@@ -486,11 +486,14 @@ class Eeproms:
         if state.status is not VALID or n <= 0:
             return max(0, n)
         address = self._address(state)
-        held = chip.peek_run(address, n)
-        want = state.buffer[state.counter : state.counter + n]
+        held: bytes = chip.peek_run(address, n)
+        want = bytes(state.buffer[state.counter : state.counter + n])
         if held == want:
             return n
-        return next(i for i in range(n) if held[i] != want[i])
+        i = 0  # the first byte to rewrite (both are n long and differ, so one does)
+        while held[i] == want[i]:
+            i += 1
+        return i
 
     def _take_reads(self, state: EepromState, chip, n: int) -> None:
         """`n` inert steps of a loading or verifying EEPROM, the last at the clock's now."""
