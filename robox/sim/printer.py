@@ -148,6 +148,7 @@ class VirtualPrinter:
             if chip is not None:
                 chip.clock = self.hw.clock
         self._saved_writes = [c.writes if c else 0 for c in bus.sockets]
+        self._chip_dumps: dict[int, FileStorage] = {}  # dumps open to write in place
         self.firmware = Firmware(self.hw)
 
     def _open(self, path: Path) -> FileStorage:
@@ -226,17 +227,33 @@ class VirtualPrinter:
 
     # ---------------------------------------------------------- persistence
     def save_chips(self) -> None:
+        """Bring each chip's dump up to date with the chip, if it was written since. A
+        dump is written over in place, one unbuffered 512-byte write, as the card image
+        and the flash are written through; a dump that did not exist is created whole,
+        by a rename."""
         if self.state_dir is None:
             return
         for index, chip in enumerate(self.hw.eeprom_bus.sockets):
             if chip is not None and chip.writes != self._saved_writes[index]:
-                write_atomically(self.state_dir / CHIP_FILES[EepromIndex(index)],
-                                 bytes(chip.data))
+                data = bytes(chip.data)
+                dump = self._chip_dumps.get(index)
+                if dump is None:
+                    path = self.state_dir / CHIP_FILES[EepromIndex(index)]
+                    if path.exists():
+                        dump = self._open(path)
+                        dump.write(0, data)
+                    else:
+                        write_atomically(path, data)
+                        dump = self._open(path)
+                    self._chip_dumps[index] = dump
+                else:
+                    dump.write(0, data)
                 self._saved_writes[index] = chip.writes
 
     def close(self) -> None:
         if getattr(self, "hw", None) is not None:
             self.save_chips()
+        self._chip_dumps = {}
         for storage in self._files:
             storage.flush()
             storage.close()

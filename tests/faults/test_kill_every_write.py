@@ -3,9 +3,10 @@
 A killed process stops between two system calls (or inside one), and what it
 wrote before stays in the kernel's page cache: the state directory holds
 exactly the writes made before the kill. The virtual printer writes its state
-in three ways only: a card block or a flash page in place (`FileStorage.write`,
-one unbuffered write call each), and a chip dump replaced whole
-(`write_atomically`: a temporary file written, then renamed over the dump).
+in two ways only: a card block, a flash page or a chip dump in place
+(`FileStorage.write`, one unbuffered write call each), and a chip dump that did
+not exist created whole (`write_atomically`: a temporary file written, then
+renamed into place).
 
 So the served session runs once, in this process, with the printer's own
 `PtyServer` (as `sim serve` runs it) and a real `robox-cli send-job` process as
@@ -170,8 +171,8 @@ def test_kill_9_at_every_write_of_a_served_print_leaves_a_state_that_reopens(
         apply(files, op)
     assert {name: bytes(data) for name, data in files.items()} == end
     kinds = {(op[0], op[1]) for op in ops}
-    assert {("write", "sdcard.img"), ("write", "flash.bin"), ("replace", "head.eeprom"),
-            ("replace", "reel0.eeprom")} <= kinds, kinds
+    assert {("write", "sdcard.img"), ("write", "flash.bin"), ("write", "head.eeprom"),
+            ("write", "reel0.eeprom")} <= kinds, kinds
     with VirtualPrinter(session) as virtual:
         expected = virtual.firmware.file_system.read_committed(make_id("part"))
     assert expected == JOB

@@ -69,6 +69,47 @@ def test_a_second_reel_needs_a_dual_reel_adaptor_file(tmp_path):
         assert printer.firmware.eeproms.status_characters() == b"2221"
 
 
+def test_chip_dumps_follow_their_chips_in_place_and_a_new_one_is_created(tmp_path):
+    """A dump is written over in place (the same file, so the same inode) as soon as
+    run_until() returns after the chip was written; a reel plugged in behind a
+    dual-reel adaptor while the printer runs gets its dump once the firmware first
+    writes it, created whole."""
+    from robox.hardware.eeprom import EepromChip
+    from robox.sim import images
+
+    state = tmp_path / "printer"
+    with VirtualPrinter(state) as printer:
+        printer.settle()
+        wire = Wire(printer)
+        inode = os.stat(state / "reel0.eeprom").st_ino
+        name = b"ROBOX TEST REEL".ljust(40, b"\0")
+        wire.ok(b"\xa2" + b"68" + b"28" + name)  # reel 0's friendly name, 40 bytes at 0x68
+        printer.settle()
+        chip = printer.hw.eeprom_bus.sockets[1]
+        assert chip.writes > 0
+        assert (state / "reel0.eeprom").read_bytes() == bytes(chip.data)
+        assert os.stat(state / "reel0.eeprom").st_ino == inode
+        assert chip.data[0x68 : 0x68 + 15] == b"ROBOX TEST REEL"
+
+        second = EepromChip(images.reel_eeprom(), clock=printer.hw.clock)
+        printer.hw.eeprom_bus.mux_present = True
+        printer.hw.eeprom_bus.insert(2, second)
+        printer.run_until(lambda: False, 1.0)  # found, loaded and verified
+        printer.settle()
+        assert printer.firmware.eeproms.status_characters()[:3] == b"222"
+        assert not (state / "reel1.eeprom").exists()  # nothing written to it yet
+        wire.ok(b"\xa4" + b"68" + b"28" + name)
+        printer.settle()
+        assert second.writes > 0
+        assert (state / "reel1.eeprom").read_bytes() == bytes(second.data)
+    assert sorted(p.name for p in state.iterdir()) == [
+        "flash.bin", "head.eeprom", "printer.lock", "reel0.eeprom", "reel1.eeprom",
+        "sdcard.img"]
+    with VirtualPrinter(state) as again:  # and the next power-up reads both reels
+        again.settle()
+        assert again.firmware.eeproms.status_characters() == b"2221"
+
+
 def test_the_pyusb_backend_presents_the_real_device():
     printer = VirtualPrinter()
     backend = VirtualRoboxBackend(printer)
