@@ -9,9 +9,12 @@ only the command part, so everything after `;` or inside `( )` is dropped, and b
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Iterator
 
 SNIFF_BYTES = 65536
+
+_WORD = re.compile(r"(\S)([^\sA-Z]*)")  # (str.isspace() is \s, ASCII letters upper-cased)
 
 
 def code_part(raw: bytes) -> bytes:
@@ -61,20 +64,9 @@ def looks_like_gcode(text: bytes) -> bool:
 
 def words(line: bytes) -> tuple[str, dict[str, str]]:
     """('G1', {'X': '10', 'E': '.5'}) from b'G1 X10 E.5'; letters upper-cased. Words may
-    be run together (b'G1X10E.5'), as some slicers write them."""
-    text = line.decode("ascii").upper()
-    out: list[tuple[str, str]] = []
-    i, n = 0, len(text)
-    while i < n:
-        c = text[i]
-        if c.isspace():
-            i += 1
-            continue
-        j = i + 1
-        while j < n and not text[j].isalpha() and not text[j].isspace():
-            j += 1
-        out.append((c, text[i + 1 : j]))
-        i = j
+    be run together (b'G1X10E.5'), as some slicers write them: a word is any character
+    but a blank, then everything up to the next letter or blank."""
+    out = _WORD.findall(line.decode("ascii").upper())
     if not out:
         return "", {}
     (letter, number), rest = out[0], out[1:]
