@@ -1,10 +1,11 @@
 """kill -9 of `robox-cli sim serve` while a host uploads a job that prints.
 
-The state directory's files are written as the printer writes its media: the card
-and the flash in place, one block or page per write; each chip dump replaced whole
-(temporary file and rename). A process killed at any moment therefore leaves the
-card and flash as a power cut right after some write would, and each chip as it was
-at some moment: test_kill_every_write.py judges every such state of a served print.
+The state directory's files are written as the printer writes its media: the card,
+the flash and each chip dump in place, one block, page or dump per write (a new
+dump is created whole, by a rename). A process killed at any moment therefore
+leaves the card and flash as a power cut right after some write would, and each
+chip as it was at some moment: test_kill_every_write.py judges every such state of
+a served print.
 Here real processes are killed at moments spread over a session, from the state
 directory's creation to the end of the upload; after each the directory must open
 as a printer, pass the offline checks, keep every committed file, and take
@@ -26,12 +27,41 @@ from robox.formats.eeprom import EepromIndex
 from robox.formats.sdcard import make_id
 from robox.sim.printer import VirtualPrinter
 
-#: Wall seconds after `sim serve` starts at which it is killed.
-MOMENTS = (0.0, 0.05, 0.15, 0.3, 0.5, 0.7, 0.9, 1.2, 1.6, 2.0, 2.5, 3.0)
+#: When `sim serve` is killed: at its start (0), or this fraction of an unbroken
+#: upload's wall time after the host starts (measured first, on the same machine, so
+#: that the kills spread over the upload however fast the model runs).
+MOMENTS = (0.0, 0.02, 0.06, 0.12, 0.2, 0.3, 0.4, 0.5, 0.62, 0.75, 0.9, 1.2)
 
 
 def run(*args):
     return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def serve(state):
+    return subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
+                             str(state)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def send(path: str, job) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "robox.cli", "--device", f"serial:{path}",
+                             "send-job", str(job), "--raw", "--id", "part"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def unbroken_upload_seconds(pristine, state, job) -> float:
+    """Wall seconds from the host's start to its end, nothing killed."""
+    shutil.copytree(pristine, state)
+    server = serve(state)
+    try:
+        path = server.stdout.readline().decode().strip()
+        start = time.monotonic()
+        host = send(path, job)
+        _, err = host.communicate(timeout=120)
+        assert host.returncode == 0, err.decode()
+        return time.monotonic() - start
+    finally:
+        server.send_signal(signal.SIGTERM)
+        server.wait(timeout=30)
 
 
 def test_kill_9_at_moments_through_a_served_upload_leaves_a_state_that_reopens(tmp_path):
@@ -46,26 +76,25 @@ def test_kill_9_at_moments_through_a_served_upload_leaves_a_state_that_reopens(t
                "--wait").exit_code == 0
     with VirtualPrinter(pristine) as virtual:
         stored_first = virtual.firmware.file_system.read_committed(make_id("first"))
+    upload_s = unbroken_upload_seconds(pristine, tmp_path / "unbroken", job)
     problems = []
     killed_mid_upload = 0
-    for number, moment in enumerate(MOMENTS):
+    for number, fraction in enumerate(MOMENTS):
+        moment = fraction * upload_s
         state = tmp_path / f"printer{number}"  # each kill starts from the same printer
         shutil.copytree(pristine, state)
-        serve = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
-                                  str(state)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        server = serve(state)
         host = None
         if moment > 0:
-            path = serve.stdout.readline().decode().strip()
-            host = subprocess.Popen([sys.executable, "-m", "robox.cli", "--device",
-                                     f"serial:{path}", "send-job", str(job), "--raw", "--id",
-                                     "part"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+            path = server.stdout.readline().decode().strip()
+            host = send(path, job)
             time.sleep(moment)
-        serve.send_signal(signal.SIGKILL)
-        serve.wait(timeout=30)
+        server.send_signal(signal.SIGKILL)
+        server.wait(timeout=30)
         if host is not None:
             _, err = host.communicate(timeout=60)
             killed_mid_upload += host.returncode != 0
-        label = f"killed {moment} s after the start"
+        label = f"killed {moment:.2f} s after the start"
         if host is not None and host.returncode != 0:
             lines = err.decode().strip().splitlines()
             if "Traceback" in err.decode() or not lines[-1].startswith("robox-cli: error"):
@@ -108,12 +137,10 @@ def test_kill_9_while_sim_serve_creates_a_new_state_directory(tmp_path):
     problems = []
     for number, moment in enumerate((0.0, 0.1, 0.15, 0.2, 0.25, 0.3, 0.5)):
         state = tmp_path / f"new{number}"
-        serve = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
-                                  str(state)], stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.DEVNULL)
+        server = serve(state)
         time.sleep(moment)
-        serve.send_signal(signal.SIGKILL)
-        serve.wait(timeout=30)
+        server.send_signal(signal.SIGKILL)
+        server.wait(timeout=30)
         result = run("--device", f"sim-once:{state}", "status")
         if result.exit_code != 0:
             problems.append(f"killed at {moment} s: status: {result.output.strip()}")
