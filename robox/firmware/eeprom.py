@@ -38,6 +38,7 @@ from robox.formats.eeprom import (
 from robox.formats.eeprom import field as field_named
 from robox.formats.protocol import ErrorBit
 from robox.hardware.clock import SimClock
+from robox.hardware.eeprom import EepromChip
 from robox.hardware.eeprom_bus import EepromBus
 
 if TYPE_CHECKING:
@@ -390,20 +391,10 @@ class Eeproms:
         other step, so the next pass finds things as the passes one by one would have
         left them."""
         clock = self.clock
-        loading = []
-        settled = []
-        for state in self.states:
-            if state.status is VALID and state.verified_banks >= 2:
-                settled.append(state)
-                continue
-            chip = self.bus.chip(state.index)
-            if chip is None:
-                if state.status is NOT_PRESENT \
-                        and not (state.counter or state.working_bank or state.writing):
-                    continue  # an empty socket already given up (see _maintain_chips)
-                return 0
-            most = min(most, self._inert_steps(state, chip, clock.now + dt))
-            loading.append((state, chip))
+        split = self._inert_split(clock.now + dt, most)
+        if split is None:
+            return 0
+        settled, loading, most = split
         if not settled:
             clock.advance(dt, most)
             for state, chip in loading:
@@ -441,18 +432,10 @@ class Eeproms:
         running them: the loop runs motion ahead only as far as the EEPROMs' steps in
         the passes it skips are inert."""
         now = self.clock.now
-        settled = []
-        for state in self.states:
-            if state.status is VALID and state.verified_banks >= 2:
-                settled.append(state)
-                continue
-            chip = self.bus.chip(state.index)
-            if chip is None:
-                if state.status is NOT_PRESENT \
-                        and not (state.counter or state.working_bank or state.writing):
-                    continue
-                return 0
-            most = min(most, self._inert_steps(state, chip, now + dt))
+        split = self._inert_split(now + dt, most)
+        if split is None:
+            return 0
+        settled, _, most = split
         if not settled:
             return most
         # a settled EEPROM steps every QUIET_STEP_S; the first of its steps found not to
@@ -473,6 +456,28 @@ class Eeproms:
                 left[j] -= 1
                 last[j] = t
         return most
+
+    def _inert_split(self, at: float, most: int) -> tuple[list[EepromState],
+                                                         list[tuple[EepromState, EepromChip]],
+                                                         int] | None:
+        """The settled EEPROMs; the loading or verifying ones, each with its chip; and
+        `most` cut to the inert steps those have from a pass at `at` on. None when an
+        EEPROM in use has lost its chip (its next step is no inert read)."""
+        settled = []
+        loading = []
+        for state in self.states:
+            if state.status is VALID and state.verified_banks >= 2:
+                settled.append(state)
+                continue
+            chip = self.bus.chip(state.index)
+            if chip is None:
+                if state.status is NOT_PRESENT \
+                        and not (state.counter or state.working_bank or state.writing):
+                    continue  # an empty socket already given up (see _maintain_chips)
+                return None
+            most = min(most, self._inert_steps(state, chip, at))
+            loading.append((state, chip))
+        return settled, loading, most
 
     def _inert_steps(self, state: EepromState, chip, at: float) -> int:
         """How many steps from a pass at `at` on are acknowledged reads that change
