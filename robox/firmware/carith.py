@@ -138,13 +138,13 @@ def wrap_long(value: int) -> int:
     return ((value + 0x80000000) & UINT_MAX) - 0x80000000
 
 
-def cmax(a, b):
-    """The firmware's max(a, b) macro."""
+def cmax(a: float, b: float) -> float:
+    """The firmware's max(a, b) macro (on floats, as every use is: compiled, native)."""
     return a if a > b else b
 
 
-def cmin(a, b):
-    """The firmware's min(a, b) macro."""
+def cmin(a: float, b: float) -> float:
+    """The firmware's min(a, b) macro (on floats, as every use is: compiled, native)."""
     return a if a < b else b
 
 

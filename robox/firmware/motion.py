@@ -301,7 +301,7 @@ class Motion:
         A caller that queues blocks on every pass waits for room itself, sparing a
         generator per block."""
         pa = self.pa
-        spu = [pa["steps_per_unit"][a] for a in AXES]
+        spu: list[float] = [pa["steps_per_unit"][a] for a in AXES]
         steps = [0] * 6
         length = 0
         # An axis that does not move costs nothing below: every float32() of a zero is
@@ -319,7 +319,7 @@ class Motion:
         blk.end_speed = 0
         blk.check_z_top = check_z_top
         if feed_rate > 0.0:
-            max_speed = [pa["max_speed"][a] for a in AXES]
+            max_speed: list[float] = [pa["max_speed"][a] for a in AXES]
             if (speed_limit > 0.0 and math.isfinite(sum(moves))
                     and all(m > 0.0 for m in max_speed)):
                 min_duration = 0.0
@@ -600,7 +600,7 @@ class Motion:
             length -= 1
             n = s + (period if period < maxp else maxp) * a
             if length < sure:
-                x = (((length if length < 0x00800000 else 0x00800000) << 1) * a + c) & U32
+                x = ((min(length, 0x00800000) << 1) * a + c) & U32
                 if unwrapped and x <= rooted:
                     while root * root > x:
                         root -= 1

@@ -158,7 +158,8 @@ class Position:
                           cmax(0.0, dest[Z]) + off[Z] + self.z_correction(moves[X], moves[Y],
                                                                           dest[Z]))
             moves[Z] = f32(target - pos[Z])
-        check_z_top = pos[Z] + cmax(moves[Z], 0.0) < pa["z_top_switch_min"]
+        z_top_min: float = pa["z_top_switch_min"]
+        check_z_top = pos[Z] + cmax(moves[Z], 0.0) < z_top_min
         for i in (E, D):
             moves[i] = f32(dest[i] - pos[i])
         opening = f32(cmax(0.0, cmin(1.0, dest[B])))
