@@ -199,7 +199,7 @@ class Firmware:
         now = self.clock.now
         events = [now + IDLE_STEP_S]
         kind = None
-        for wait in (self.job.waiting, self.command.waiting):
+        for wait in [self.job.waiting, self.command.waiting]:  # (a list: compiled, native)
             if wait is None:
                 continue
             if wait.until is not None:

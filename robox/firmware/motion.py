@@ -47,7 +47,7 @@ from robox.firmware.carith import f32 as float32
 from robox.firmware.carith import sqrt as csqrt
 from robox.firmware.gcode import Wait, Waits, wait_for
 from robox.formats.protocol import ErrorBit
-from robox.hardware.machine import AXES, B, D, E, X, Y, Z
+from robox.hardware.machine import AXES, B, D, E, Machine, X, Y, Z
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
@@ -531,7 +531,7 @@ class Motion:
             return True
         return self.machine.switch_pin(self.switch_select) != self.switch_invert
 
-    def _interrupt(self, blk: Block, m) -> None:
+    def _interrupt(self, blk: Block, m: Machine) -> None:
         """One step interrupt, as TC0_IrqHandler does it with a block under way."""
         self._check_index_wheels()
         acc = self.acc
@@ -645,7 +645,7 @@ class Motion:
             acc[i] = (before + moved) & U32
             m.step(i, ((before & 0xFFFF) + moved) >> 16)
 
-    def _run_length(self, blk: Block, limit: int, m, cap: int | None) -> int:
+    def _run_length(self, blk: Block, limit: int, m: Machine, cap: int | None) -> int:
         """How many interrupts from now can be done at once (1: one at a time): the speed
         must stay exactly where it is for every one of them, no input the interrupt
         reads may change, the block may not end and `cap` counted ones are the most."""
@@ -692,7 +692,7 @@ class Motion:
             k = min(k, ((quiet - 1) * 65536 - 65535) // biggest)
         return k
 
-    def _batch(self, blk: Block, k: int, m) -> None:
+    def _batch(self, blk: Block, k: int, m: Machine) -> None:
         """`k` interrupts at a constant speed, no input changing, the block not ending."""
         self._check_index_wheels()
         self._step_movers(blk, k)

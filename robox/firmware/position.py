@@ -149,7 +149,7 @@ class Position:
         the steps make; whether a block was queued."""
         pa = self.pa
         pos, dest, off = self.position, self.destination, self.tool_offset
-        for i in (X, Y):
+        for i in range(X, Y + 1):  # (a range: compiled, a tuple's iterator is generic)
             if self.homing_done[i]:
                 target = cmax(0.0, cmin(self._travel(i), f32(dest[i] + off[i])))
                 moves[i] = f32(target - pos[i])
@@ -160,7 +160,7 @@ class Position:
             moves[Z] = f32(target - pos[Z])
         z_top_min: float = pa["z_top_switch_min"]
         check_z_top = pos[Z] + cmax(moves[Z], 0.0) < z_top_min
-        for i in (E, D):
+        for i in range(E, D + 1):
             moves[i] = f32(dest[i] - pos[i])
         opening = f32(cmax(0.0, cmin(1.0, dest[B])))
         opening = opening if self.tool == 0 else -opening
@@ -174,7 +174,7 @@ class Position:
             pos[i] = f32(pos[i] + moves[i])
         if self.on_move is not None:
             self.on_move(moves)
-        return any(moves)
+        return any(m != 0.0 for m in moves)  # (a generator here compiles to a loop)
 
     def _quiet_segments(self, step: list[float], left: int) -> int:
         """After a segment that queued nothing: how many of the next `left` segments

@@ -245,7 +245,7 @@ class Machine:
         margin = NEVER
         if select is not None and AXES[select] not in self.stuck:
             margin = self._switch_margin(select)
-        for axis in (E, D):
+        for axis in range(E, D + 1):
             f = self.filament[axis]
             if f is not None and not self.wheel_slipping[axis]:
                 r = self.wheel_passed[axis] % INDEX_EDGE_STEPS
