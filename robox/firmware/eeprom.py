@@ -81,6 +81,10 @@ VALID: Final = Status.VALID
 HEAD: Final = 0
 REEL0: Final = 1
 REEL1: Final = 2
+# the banks' first addresses, held here (compiled: a static, not a lookup in another
+# module's namespace on every step)
+BANK0: Final = BANK_ADDRESSES[0]
+BANK1: Final = BANK_ADDRESSES[1]
 
 
 @dataclass
@@ -175,7 +179,7 @@ class Eeproms:
 
     # ----------------------------------------------------------- one step
     def _address(self, state: EepromState) -> int:
-        return BANK_ADDRESSES[state.working_bank] + state.counter
+        return (BANK1 if state.working_bank else BANK0) + state.counter
 
     def _step(self, state: EepromState) -> None:
         address = self._address(state)
