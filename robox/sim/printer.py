@@ -239,15 +239,10 @@ class VirtualPrinter:
                 dump = self._chip_dumps.get(index)
                 if dump is None:
                     path = self.state_dir / CHIP_FILES[EepromIndex(index)]
-                    if path.exists():
-                        dump = self._open(path)
-                        dump.write(0, data)
-                    else:
+                    if not path.exists():
                         write_atomically(path, data)
-                        dump = self._open(path)
-                    self._chip_dumps[index] = dump
-                else:
-                    dump.write(0, data)
+                    dump = self._chip_dumps[index] = self._open(path)
+                dump.write(0, data)
                 self._saved_writes[index] = chip.writes
 
     def close(self) -> None:
