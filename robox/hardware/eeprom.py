@@ -10,7 +10,7 @@ from __future__ import annotations
 from robox.errors import PowerCut
 from robox.formats.eeprom import CHIP_SIZE
 from robox.hardware.clock import SimClock
-from robox.hardware.faults import EepromFaultPlan
+from robox.hardware.faults import EepromFaultPlan, PowerPlan
 
 #: Internal write cycle of a small serial EEPROM: it ignores the bus meanwhile.
 WRITE_CYCLE_S = 0.005
@@ -35,7 +35,10 @@ class EepromChip:
         self.nacks = 0
         self._busy_until = 0.0
         #: The printer's supply (a PowerPlan shared with the other media), if watched.
-        self.power = None
+        self.power: PowerPlan | None = None
+        #: With a list here, the kind of every transaction from then on ("read", "write")
+        #: is appended to it, in order.
+        self.journal: list[str] | None = None
 
     def unplug(self) -> None:
         self.plugged = False
@@ -46,8 +49,10 @@ class EepromChip:
     def _now(self) -> float:
         return self.clock.now if self.clock is not None else 0.0
 
-    def _acknowledges(self) -> bool:
+    def _acknowledges(self, kind: str) -> bool:
         self.transactions += 1
+        if self.journal is not None:
+            self.journal.append(kind)
         if self.faults.unplug_at == self.transactions:
             self.plugged = False
         if not self.plugged or self._now() < self._busy_until:
@@ -70,11 +75,13 @@ class EepromChip:
         sure: see will_acknowledge), as `n` calls of read() would count them."""
         self.transactions += n
         self.reads += n
+        if self.journal is not None:
+            self.journal.extend(["read"] * n)
         return self.peek_run(address, n)
 
     def read(self, address: int) -> int | None:
         """One single-byte read; None when not acknowledged."""
-        if not self._acknowledges():
+        if not self._acknowledges("read"):
             return None
         self.reads += 1
         return self.data[address % CHIP_SIZE]
@@ -82,7 +89,7 @@ class EepromChip:
     def write(self, address: int, value: int) -> bool:
         """One single-byte write; False when not acknowledged."""
         ordinal = self.transactions + 1
-        if not self._acknowledges():
+        if not self._acknowledges("write"):
             if self.faults.unplug_at == ordinal and self.faults.write_lands:
                 self.data[address % CHIP_SIZE] = value & 0xFF
             return False

@@ -61,18 +61,7 @@ def clean_run(media, index: EepromIndex) -> Clean:
     before = bytes(fw.eeproms.states[index].data[:DATA_SIZE])
     base = chip.transactions
     kinds: list[str] = []
-    original_write = chip.write
-    original_read = chip.read
-
-    def write(address, value):
-        kinds.append("write")
-        return original_write(address, value)
-
-    def read(address):
-        kinds.append("read")
-        return original_read(address)
-
-    chip.write, chip.read = write, read
+    chip.journal = kinds
     virtual.run_until(lambda: fw.clock.now >= TICK + 0.01, 1)
     virtual.run_until(lambda: fw.eeproms.settled(index), 5)
     after = bytes(fw.eeproms.states[index].data[:DATA_SIZE])
