@@ -24,6 +24,11 @@ NATIVE_MODULES = [
     "robox/hardware/machine.py",
     "robox/hardware/eeprom_bus.py",
     "robox/hardware/clock.py",
+    "robox/hardware/usb.py",
+    "robox/hardware/eeprom.py",
+    "robox/formats/float8.py",
+    "robox/gcode/translate.py",
+    "robox/gcode/text.py",
 ]
 
 

@@ -25,6 +25,11 @@ MODULES = (
     "robox.hardware.machine",
     "robox.hardware.eeprom_bus",
     "robox.hardware.clock",
+    "robox.hardware.usb",
+    "robox.hardware.eeprom",
+    "robox.formats.float8",
+    "robox.gcode.translate",
+    "robox.gcode.text",
 )
 
 
