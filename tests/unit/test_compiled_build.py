@@ -5,8 +5,9 @@ mypyc compiles the same sources with other semantics in places (native integers,
 declared attribute types checked on assignment, classes whose methods cannot be
 replaced): this is the run that sees a difference those make. It builds a wheel from a
 copy of the sources (the working tree gets no build directory), unpacks it and runs
-tests/firmware, tests/sim and the native arithmetic tests against it, from a directory
-without the sources, so the compiled modules are the ones imported.
+tests/firmware, tests/sim, the translator's tests, the EEPROM unplug campaign and the
+native arithmetic tests against it, from a directory without the sources, so the
+compiled modules are the ones imported.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ from robox.native import MODULES
 
 ROOT = Path(__file__).resolve().parents[2]
 SOURCES = ("robox", "buildsys", "setup.py", "pyproject.toml", "README.md")
-SUITES = ("tests/firmware", "tests/sim", "tests/unit/test_native.py")
+SUITES = ("tests/firmware", "tests/sim", "tests/gcode", "tests/faults/test_print_eeprom_unplug.py",
+          "tests/unit/test_native.py")
 
 
 def _compiler() -> str | None:
