@@ -7,7 +7,8 @@ from setuptools import setup
 
 # The firmware model's per-pass work: the loop, the step interrupt and block queue,
 # segmenting and positions, G-code, commands, EEPROMs, heaters, C arithmetic and line
-# parsing, the machine the steps move, the EEPROMs' bus, the clock.
+# parsing, the machine the steps move, the EEPROMs' bus and chips, the USB link, the
+# clock, the filament float format; and the host's G-code translator.
 NATIVE_MODULES = [
     "robox/firmware/carith.py",
     "robox/firmware/cline.py",

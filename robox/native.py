@@ -1,4 +1,5 @@
-"""Which of the firmware model's hot modules run compiled.
+"""Which of the hot modules (the firmware model's, and the host's G-code translator) run
+compiled.
 
 `ROBOX_NATIVE=1 pip install .` compiles them with mypyc (buildsys/robox_build.py,
 setup.py); every other install runs the same modules as pure Python. Both give the same
