@@ -1,7 +1,7 @@
 """The printer's I2C bus to its EEPROMs: the head and reel 0 sockets, and reel 1 behind
-the dual-reel adaptor's multiplexer. Part of the compiled core (robox.native): the
-firmware model reaches its chips through it on every pass; the chips themselves
-(robox.hardware.eeprom) stay interpreted, so fault tests can wrap their transactions.
+the dual-reel adaptor's multiplexer. Part of the compiled core (robox.native), as the
+chips are (robox.hardware.eeprom): the firmware model reaches them through it on every
+pass. A test that watches a chip's transactions reads its journal.
 """
 
 from __future__ import annotations
