@@ -283,24 +283,16 @@ class Firmware:
             # next pass (which may start or pause a job before it) counts only its own
             self.hours.maintain()
 
-    def inside_commands(self) -> bool:
-        """True while the command object runs a line that waits (a Pronterface line, a
-        reporting 0x95): on the printer the loop is then nested inside maintain_commands."""
-        return self.command.line is not None
-
-    def run_until(self, condition, timeout: float = 3600.0, max_passes: int = 50_000_000,
-                  *, between_lines: bool = True) -> bool:
+    def run_until(self, condition, timeout: float = 3600.0,
+                  max_passes: int = 50_000_000) -> bool:
         """Run passes until `condition()` holds or `timeout` simulated seconds pass.
 
-        With `between_lines` (the default) the condition is not looked at while the command
-        object runs a line that waits (the timeout still ends the run anywhere): the host
-        that recorded the real firmware's sessions (../shared/conformance) saw output only
-        outside maintain_commands, so it saw a Pronterface burst whole, while a job line
-        that waits did not hide a reply. The USB backend looks after every pass, as a USB
-        host does."""
+        The condition is looked at after every pass, as a USB host sees the printer: a
+        reply sent while a line waits (a Pronterface line inside maintain_commands, say) is
+        there to read at once, the lines before it answered."""
         end = self.clock.now + timeout
         for _ in range(max_passes):
-            if (not between_lines or not self.inside_commands()) and condition():
+            if condition():
                 return True
             if self.clock.now >= end:
                 return False

@@ -181,15 +181,8 @@ class VirtualPrinter:
         self.firmware.run_pass(step, passes)
         self.save_chips()
 
-    #: How run_until() looks by default: only between passes of the foreground loop (as the
-    #: recordings of the real firmware were made), or after every pass (a USB host's view).
-    between_lines = True
-
-    def run_until(self, condition, timeout: float = 3600.0, *,
-                  between_lines: bool | None = None) -> bool:
-        if between_lines is None:
-            between_lines = self.between_lines
-        done = self.firmware.run_until(condition, timeout, between_lines=between_lines)
+    def run_until(self, condition, timeout: float = 3600.0) -> bool:
+        done = self.firmware.run_until(condition, timeout)
         self.save_chips()
         return done
 
@@ -200,7 +193,7 @@ class VirtualPrinter:
         usb.host_write(frame)
         reply = b""
         while True:
-            self.run_until(lambda: usb.reply_waiting > 0, timeout, between_lines=False)
+            self.run_until(lambda: usb.reply_waiting > 0, timeout)
             if not usb.reply_waiting:
                 raise RoboxError(f"the virtual printer did not answer {frame[:1].hex()} "
                                  f"(got {reply!r})")

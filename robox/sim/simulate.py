@@ -230,7 +230,7 @@ def _print(virtual: VirtualPrinter, watch: Watch, report: Report,
         return not job.running or bool(job.pause)
 
     while True:
-        virtual.run_until(sample, POLL_S, between_lines=False)
+        virtual.run_until(sample, POLL_S)
         if fw.position.on_move is None:  # the printer was reset: a new position object
             watch.attach()
         bits = _errors(virtual)

@@ -184,7 +184,7 @@ class VirtualRoboxBackend(usb.backend.IBackend):
             seconds = (timeout or 1000) / 1000.0
             # a USB host sees a reply as soon as it is sent, even mid-line
             self.printer.run_until(lambda: usb_link.reply_waiting > 0 or
-                                   not usb_link.connected, seconds, between_lines=False)
+                                   not usb_link.connected, seconds)
             self._check_connected()
         if not usb_link.reply_waiting:
             raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)

@@ -90,7 +90,7 @@ def connect(virtual: VirtualPrinter) -> Printer:
     backend = VirtualRoboxBackend(virtual)
     device = usb.core.find(idVendor=0x16D0, idProduct=0x081B, backend=backend)
     return Printer(UsbTransport(device), idle=lambda s: virtual.run_until(
-        lambda: False, s, between_lines=False))
+        lambda: False, s))
 
 
 @cache

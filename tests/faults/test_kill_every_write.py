@@ -57,7 +57,7 @@ def connect(virtual: VirtualPrinter) -> Printer:
     device = usb.core.find(idVendor=0x16D0, idProduct=0x081B,
                            backend=VirtualRoboxBackend(virtual))
     return Printer(UsbTransport(device), idle=lambda s: virtual.run_until(
-        lambda: False, s, between_lines=False))
+        lambda: False, s))
 
 
 def read_dir(state: Path) -> dict[str, bytes]:

@@ -79,7 +79,7 @@ def run(media: Media, light: bool, faults=None, frames=()) -> tuple:
             p.run_until(lambda: fw.eeproms.all_quiet(), END_S)
             continue
         usb.host_write(frame)
-        p.run_until(lambda: usb.reply_waiting > 0, 1.0, between_lines=False)
+        p.run_until(lambda: usb.reply_waiting > 0, 1.0)
         log.events.append(("reply", usb.host_read(4096), round(fw.clock.now, 9)))
     p.run_until(lambda: fw.eeproms.all_quiet(), END_S)
     quiet_at, state = round(fw.clock.now, 9), outcome(p)
@@ -165,7 +165,7 @@ def test_light_passes_make_power_up_and_uploads_cheap():
         usb = p.usb
         for frame in HOST:
             usb.host_write(frame)
-            p.run_until(lambda usb=usb: usb.reply_waiting > 0, 1.0, between_lines=False)
+            p.run_until(lambda usb=usb: usb.reply_waiting > 0, 1.0)
             usb.host_read(4096)
         p.settle()
         assert all(fw.eeproms.states[i].status.name == "VALID" for i in (HEAD, REEL0))
@@ -202,7 +202,7 @@ def printing(light: bool) -> tuple:
 
     def ask(frame: bytes) -> None:
         usb.host_write(frame)
-        p.run_until(lambda: usb.reply_waiting > 0, 1.0, between_lines=False)
+        p.run_until(lambda: usb.reply_waiting > 0, 1.0)
         log.events.append(("reply", usb.host_read(4096), round(fw.clock.now, 9)))
 
     frames = upload(PRINT_ID, PRINT)

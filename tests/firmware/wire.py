@@ -28,7 +28,6 @@ def float8(value: float) -> bytes:
 class Wire:
     def __init__(self, printer: VirtualPrinter | None = None):
         self.printer = printer or VirtualPrinter()
-        self.printer.between_lines = False  # a USB host's view: replies as soon as sent
         self.fw = self.printer.firmware
         self.usb = self.printer.usb
 

@@ -41,14 +41,14 @@ def test_send_file_resumes_the_pause_of_a_job_that_caught_up(virtual):
 
     def progress(done, total):
         # the upload is slow: the job prints everything stored, then pauses and parks
-        virtual.run_until(lambda: False, 2.0, between_lines=False)
+        virtual.run_until(lambda: False, 2.0)
         seen.append(virtual.firmware.job.state_text()[8:9])
 
     printer.send_file(job, "fast", progress=progress, notice=notices.append)
     assert b"2" in seen  # it did catch up, paused and parked
     assert printer.catch_up_resumes >= 1 and notices == []  # resumed; nothing else paused it
     fw = virtual.firmware
-    assert virtual.run_until(lambda: not fw.job.running, 600, between_lines=False)
+    assert virtual.run_until(lambda: not fw.job.running, 600)
     assert ("job finished", b"fast".ljust(16, b"\0")) in fw.events
     assert fw.job.lines_executed >= 2000
 
@@ -61,16 +61,16 @@ def test_a_pause_the_user_made_is_left_alone_and_reported(virtual):
 
     def progress(done, total):
         chunks_done.append(done)
-        virtual.run_until(lambda: False, 0.002, between_lines=False)
+        virtual.run_until(lambda: False, 0.002)
         if len(chunks_done) == 3:
             printer.pause()  # the user's pause, mid-file
-            virtual.run_until(lambda: False, 1.0, between_lines=False)
+            virtual.run_until(lambda: False, 1.0)
 
     printer.send_file(job, "user", progress=progress, notice=notices.append)
     fw = virtual.firmware
     line = fw.job.line_number
     assert line not in catch_up_lines(job)
-    virtual.run_until(lambda: False, 30, between_lines=False)
+    virtual.run_until(lambda: False, 30)
     assert fw.job.running and fw.job.paused() and fw.job.line_number == line  # still paused
     assert notices and "left paused" in notices[0] and "by the user or the job" in notices[0]
     assert len(chunks_done) > CATCH_UP_CHECK_CHUNKS
