@@ -222,8 +222,8 @@ def test_a_frame_inside_an_unfinished_text_line_is_text(printer):
     assert robox(printer, b"\xff") == b""  # the unfinished "; l" takes it as text too
 
 
-# Seed 592: text frames sent while a Pronterface line ("M111 ") is unfinished; the frames
-# after the first are chunk 0 again, after "\xc612.50000" joined the last line.
+# Seed 592, steps 5 and 7: two chunk frames (0x91, chunk 0) written while a Pronterface
+# line is unfinished, so text, header and all; "\xc612.50000" joins the line between them.
 SEED592_STEP5 = (
     b'; layer\nG92 E0\nG1 E0.1 F300\nG1 X1 Y1 F1200\nG1 X1 Y1 F1200\nG1 E0.1 F300\n'
     b'M104 S0\nG1 X1 Y1 F1200\nM104 S0\nG92 E0\nG92 E0\nG90\nM106 S0\nM104 S0\n'
