@@ -1,5 +1,5 @@
-"""Extension modules for the opt-in compiled core (see buildsys/robox_build.py); the
-rest of the package's metadata is in pyproject.toml."""
+"""Extension modules for the compiled core (buildsys/robox_build.py decides whether a
+build has them); the rest of the package's metadata is in pyproject.toml."""
 
 import os
 
@@ -33,14 +33,22 @@ NATIVE_MODULES = [
 ]
 
 
+NATIVE = os.environ.get("ROBOX_BUILD_KIND") == "native"
+
+
 def ext_modules():
-    if os.environ.get("ROBOX_NATIVE") != "1":
+    if not NATIVE:
         return []
     from mypyc.build import mypycify
 
     # the modules they import are type-checked only as far as the compiled ones need
-    options = ["--ignore-missing-imports", "--follow-imports=silent"]
-    return mypycify(options + NATIVE_MODULES, opt_level="3")
+    options = ["--ignore-missing-imports", "--follow-imports=silent",
+               "--cache-dir", os.path.join("build", "native", "mypy-cache")]
+    return mypycify(options + NATIVE_MODULES, opt_level="3",
+                    target_dir=os.path.join("build", "native", "c"))
 
 
-setup(ext_modules=ext_modules())
+# a build directory of its own for each kind: a pure wheel never packs an extension that
+# a compiled build left in build/lib
+setup(ext_modules=ext_modules(),
+      options={"build": {"build_base": os.path.join("build", "native" if NATIVE else "pure")}})

@@ -1,41 +1,138 @@
-"""The build backend: setuptools, plus an opt-in compiled core.
+"""The build backend: setuptools, plus the compiled core where it can be built.
 
-With ROBOX_NATIVE=1 in the environment, a (non-editable) install compiles the
-firmware model's hot modules (setup.py, NATIVE_MODULES) with mypyc into C
-extensions; the same .py files stay beside them as the pure-Python fallback, and
-`robox.native.describe()` tells which one runs. Without it, or for an editable
-install (whose compiled modules would shadow later edits of the sources), the
-package is pure Python as always.
+A wheel (`pip install .`, `pip wheel .`, `python -m build`) compiles the firmware
+model's hot modules (setup.py, NATIVE_MODULES) with mypyc into C extensions; the same
+.py files stay beside them as the pure-Python fallback, and `robox.native.describe()`
+tells which one runs. `ROBOX_NATIVE` in the environment chooses:
+
+- unset (or `auto`): compiled when it can be; with no C compiler, or when compiling
+  fails, the wheel is pure Python and one line on stderr says why;
+- `1`: compiled or nothing (a failure to compile fails the build);
+- `0`: pure Python.
+
+An editable install (`pip install -e .`) is always pure Python: compiled modules would
+shadow later edits of the sources. Each kind of build keeps its own build directory
+(build/native, build/pure), so a pure wheel never picks up an extension a compiled
+build left behind.
 """
 
+from __future__ import annotations
+
 import os
+import shlex
+import shutil
 import sys
+import sysconfig
 
 from setuptools import build_meta as _setuptools
 from setuptools.build_meta import *  # noqa: F403  (the standard hooks, unchanged)
 
 MYPYC = "mypy[mypyc]>=1.10"
+CHOICE = "ROBOX_NATIVE"
+BUILD = "ROBOX_BUILD_KIND"  # what setup.py builds: "native" or "pure" (set here only)
 
 
-def _native() -> bool:
-    return os.environ.get("ROBOX_NATIVE") == "1"
+def _choice() -> str:
+    value = os.environ.get(CHOICE, "auto").strip().lower() or "auto"
+    if value not in ("auto", "0", "1"):
+        raise SystemExit(f"robox: {CHOICE} must be 1, 0 or auto, not {value!r}")
+    return value
+
+
+def _say(text: str) -> None:
+    print(f"robox: {text}", file=sys.stderr)
+
+
+def compiler() -> str | None:
+    """The C compiler a build would run (CC, as setuptools takes it), if it exists."""
+    command = os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc"
+    words = shlex.split(command)
+    return shutil.which(words[0]) if words else None
+
+
+class _Kind:
+    """ROBOX_BUILD_KIND set to `kind` for the duration of a build step."""
+
+    def __init__(self, kind: str):
+        self.kind = kind
+
+    def __enter__(self):
+        self.before = os.environ.get(BUILD)
+        os.environ[BUILD] = self.kind
+
+    def __exit__(self, *exc):
+        if self.before is None:
+            os.environ.pop(BUILD, None)
+        else:
+            os.environ[BUILD] = self.before
 
 
 def get_requires_for_build_wheel(config_settings=None):
-    if not _native():
-        return _setuptools.get_requires_for_build_wheel(config_settings)
-    # setuptools runs setup.py to list what it needs: without mypyc, which is not there yet
-    os.environ["ROBOX_NATIVE"] = "0"
+    with _Kind("pure"):  # setuptools runs setup.py to list what it needs: without mypyc
+        needed = list(_setuptools.get_requires_for_build_wheel(config_settings))
+    choice = _choice()
+    if choice == "1" or (choice == "auto" and compiler() is not None):
+        needed.append(MYPYC)
+    return needed
+
+
+def build_wheel(wheel_directory, config_settings=None, metadata_directory=None):
+    choice = _choice()
+    if choice == "0":
+        return _pure(wheel_directory, config_settings, metadata_directory)
+    if choice == "auto" and compiler() is None:
+        _say("no C compiler found; building the pure-Python package (set CC, or install "
+             "one for the compiled core)")
+        return _pure(wheel_directory, config_settings, metadata_directory)
     try:
-        return [*_setuptools.get_requires_for_build_wheel(config_settings), MYPYC]
-    finally:
-        os.environ["ROBOX_NATIVE"] = "1"
+        with _Kind("native"):
+            return _setuptools.build_wheel(wheel_directory, config_settings,
+                                           metadata_directory)
+    except (Exception, SystemExit) as error:
+        if choice == "1":
+            raise
+        _say(f"the compiled core did not build ({_reason(error)}); building the pure-Python "
+             "package")
+        return _pure(wheel_directory, config_settings, metadata_directory)
+
+
+def _reason(error: BaseException) -> str:
+    """The last line of what went wrong, at most 200 characters (a failed compiler
+    command names every flag)."""
+    lines = str(error).strip().splitlines()
+    text = lines[-1] if lines else type(error).__name__
+    return text if len(text) <= 200 else text[:197] + "..."
+
+
+def _pure(wheel_directory, config_settings, metadata_directory):
+    with _Kind("pure"):
+        return _setuptools.build_wheel(wheel_directory, config_settings, metadata_directory)
+
+
+def get_requires_for_build_editable(config_settings=None):
+    with _Kind("pure"):
+        return _setuptools.get_requires_for_build_editable(config_settings)
 
 
 def build_editable(wheel_directory, config_settings=None, metadata_directory=None):
-    if _native():
-        print("robox: ROBOX_NATIVE is ignored for an editable install (compiled modules "
-              "would hide later edits of the sources); building pure Python",
-              file=sys.stderr)
-        os.environ["ROBOX_NATIVE"] = "0"
-    return _setuptools.build_editable(wheel_directory, config_settings, metadata_directory)
+    if _choice() == "1":
+        _say(f"{CHOICE}=1 is ignored for an editable install (compiled modules would hide "
+             "later edits of the sources); building pure Python")
+    with _Kind("pure"):
+        return _setuptools.build_editable(wheel_directory, config_settings, metadata_directory)
+
+
+def prepare_metadata_for_build_wheel(metadata_directory, config_settings=None):
+    with _Kind("pure"):
+        return _setuptools.prepare_metadata_for_build_wheel(metadata_directory, config_settings)
+
+
+def prepare_metadata_for_build_editable(metadata_directory, config_settings=None):
+    with _Kind("pure"):
+        return _setuptools.prepare_metadata_for_build_editable(metadata_directory,
+                                                               config_settings)
+
+
+def build_sdist(sdist_directory, config_settings=None):
+    with _Kind("pure"):
+        return _setuptools.build_sdist(sdist_directory, config_settings)

@@ -1,10 +1,11 @@
 """Which of the hot modules (the firmware model's, and the host's G-code translator) run
 compiled.
 
-`ROBOX_NATIVE=1 pip install .` compiles them with mypyc (buildsys/robox_build.py,
-setup.py); every other install runs the same modules as pure Python. Both give the same
-bytes, positions and moments; the compiled ones only run faster.
-"""
+A wheel build (`pip install .`) compiles them with mypyc where a C compiler is
+(buildsys/robox_build.py, setup.py); an editable install, `ROBOX_NATIVE=0` or a machine
+where compiling fails runs the same modules as pure Python. Both give the same bytes,
+positions and moments; the compiled ones only run faster. `robox-cli --version` reports
+describe()."""
 
 from __future__ import annotations
 

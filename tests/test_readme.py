@@ -28,7 +28,7 @@ def fresh_home(tmp_path) -> dict:
 
 def test_the_main_command_prints_on_a_virtual_printer_that_stays_on(tmp_path):
     main = next(line.strip() for line in README.splitlines()
-                if "pip install -q -e . &&" in line)
+                if "pip install -q . &&" in line)
     words = shlex.split(main.split("&&")[-1])
     assert words[0] == ".venv/bin/robox-cli" and "--device" in words
     env = fresh_home(tmp_path)

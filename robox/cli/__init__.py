@@ -16,8 +16,19 @@ from robox.cli.sdcard import sdcard
 from robox.cli.sim import sim
 
 
+def _show_version(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
+    if not value or ctx.resilient_parsing:
+        return
+    from robox.native import describe  # imports the model's modules: only when asked
+
+    click.echo(f"robox-cli, version {__version__}; firmware model: {describe()}")
+    ctx.exit()
+
+
 @click.group(cls=RoboxGroup)
-@click.version_option(__version__, prog_name="robox-cli")
+@click.option("--version", is_flag=True, expose_value=False, is_eager=True,
+              callback=_show_version,
+              help="Show the version and whether the firmware model runs compiled, and exit.")
 @click.option("--device", envvar="ROBOX_DEVICE", metavar="DEVICE",
               help="usb (the one attached Robox), usb:ID (unique-ID prefix), serial:PATH, "
                    "sim[:DIR] (the virtual printer, served in the background), sim-once[:DIR] "

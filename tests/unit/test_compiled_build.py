@@ -1,5 +1,6 @@
-"""The optional compiled core, built here as the README's `ROBOX_NATIVE=1` install
-builds it, runs the firmware model's own tests with the same results as pure Python.
+"""The compiled core, built here as a plain `pip install .` builds it (compiled is the
+default where a C compiler is), runs the firmware model's own tests with the same
+results as pure Python.
 
 mypyc compiles the same sources with other semantics in places (native integers,
 declared attribute types checked on assignment, classes whose methods cannot be
@@ -49,7 +50,7 @@ def _copy(names: tuple[str, ...], dest: Path, *skip: str) -> None:
 def test_the_compiled_core_passes_the_firmware_models_tests(tmp_path):
     src, wheels, site, run = (tmp_path / d for d in ("src", "wheel", "site", "run"))
     _copy(SOURCES, src, "__pycache__", "*.so", "*.pyd", "build", "*.egg-info")
-    env = dict(os.environ, ROBOX_NATIVE="1")
+    env = {k: v for k, v in os.environ.items() if k != "ROBOX_NATIVE"}  # the default
     built = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
                             "-w", str(wheels), str(src)],
                            env=env, capture_output=True, text=True, timeout=900)
@@ -58,6 +59,20 @@ def test_the_compiled_core_passes_the_firmware_models_tests(tmp_path):
     assert "-none-any" not in wheel.name  # a platform wheel: extensions inside
     with zipfile.ZipFile(wheel) as z:
         z.extractall(site)
+    # what the build wrote stays in build/ (mypy's cache and mypyc's C sources too)
+    written = {p.name for p in src.iterdir()} - set(SOURCES)
+    assert written == {"build", "robox.egg-info"}, written
+
+    # a pure build from the same tree afterwards packs no extension the compiled one left
+    pure = tmp_path / "pure"
+    again = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
+                            "-w", str(pure), str(src)], env=dict(env, ROBOX_NATIVE="0"),
+                           capture_output=True, text=True, timeout=900)
+    assert again.returncode == 0, again.stderr[-4000:]
+    (plain,) = pure.glob("robox-*.whl")
+    assert plain.name.endswith("-py3-none-any.whl")
+    with zipfile.ZipFile(plain) as z:
+        assert not [n for n in z.namelist() if n.endswith((".so", ".pyd"))]
 
     # the tests and what they read by path from the project's root; no package sources
     run.mkdir()

@@ -38,20 +38,31 @@ def test_describe_counts_the_compiled_modules():
     assert (text == "pure Python") if n == 0 else text.startswith(f"compiled core ({n} of {whole}")
 
 
-def test_the_build_backend_asks_for_mypyc_only_when_told_to(monkeypatch):
+def test_the_build_backend_asks_for_mypyc_unless_it_cannot_or_must_not(monkeypatch,
+                                                                         tmp_path):
     monkeypatch.syspath_prepend(str(ROOT / "buildsys"))
     sys.modules.pop("robox_build", None)
     backend = importlib.import_module("robox_build")
     seen = []
     monkeypatch.setattr(backend._setuptools, "get_requires_for_build_wheel",
-                        lambda settings=None: seen.append(os.environ.get("ROBOX_NATIVE"))
+                        lambda settings=None: seen.append(os.environ.get(backend.BUILD))
                         or ["wheel"])
+    cc = tmp_path / "cc"
+    cc.write_text("#!/bin/sh\n")
+    cc.chmod(0o755)
+    monkeypatch.setenv("CC", f"{cc} -pthread")  # a command line: its first word is run
     monkeypatch.delenv("ROBOX_NATIVE", raising=False)
-    assert backend.get_requires_for_build_wheel() == ["wheel"]
-    monkeypatch.setenv("ROBOX_NATIVE", "1")
     assert backend.get_requires_for_build_wheel() == ["wheel", backend.MYPYC]
-    # setup.py is run without mypyc while the requirements are listed, then it is back on
-    assert seen == [None, "0"] and os.environ["ROBOX_NATIVE"] == "1"
+    monkeypatch.setenv("ROBOX_NATIVE", "0")
+    assert backend.get_requires_for_build_wheel() == ["wheel"]
+    monkeypatch.setenv("CC", str(tmp_path / "missing"))
+    monkeypatch.setenv("ROBOX_NATIVE", "auto")
+    assert backend.get_requires_for_build_wheel() == ["wheel"]  # no compiler: pure
+    monkeypatch.setenv("ROBOX_NATIVE", "1")
+    assert backend.get_requires_for_build_wheel() == ["wheel", backend.MYPYC]  # required
+    # setup.py is run without mypyc while the requirements are listed, and that leaves
+    # nothing behind in the environment
+    assert seen == ["pure"] * 4 and backend.BUILD not in os.environ
 
 
 def _square_edges() -> list[int]:
