@@ -81,8 +81,8 @@ def build_wheel(wheel_directory, config_settings=None, metadata_directory=None):
     if choice == "0":
         return _pure(wheel_directory, config_settings, metadata_directory)
     if choice == "auto" and compiler() is None:
-        _say("no C compiler found; building the pure-Python package (set CC, or install "
-             "one for the compiled core)")
+        _say("no C compiler found (CC); building the pure-Python package (ROBOX_NATIVE=1 "
+             "tries the compiled core all the same)")
         return _pure(wheel_directory, config_settings, metadata_directory)
     try:
         with _Kind("native"):
