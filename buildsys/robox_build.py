@@ -18,6 +18,7 @@ build left behind.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shlex
 import shutil
@@ -50,25 +51,22 @@ def compiler() -> str | None:
     return shutil.which(words[0]) if words else None
 
 
-class _Kind:
+@contextlib.contextmanager
+def _kind(kind: str):
     """ROBOX_BUILD_KIND set to `kind` for the duration of a build step."""
-
-    def __init__(self, kind: str):
-        self.kind = kind
-
-    def __enter__(self):
-        self.before = os.environ.get(BUILD)
-        os.environ[BUILD] = self.kind
-
-    def __exit__(self, *exc):
-        if self.before is None:
+    before = os.environ.get(BUILD)
+    os.environ[BUILD] = kind
+    try:
+        yield
+    finally:
+        if before is None:
             os.environ.pop(BUILD, None)
         else:
-            os.environ[BUILD] = self.before
+            os.environ[BUILD] = before
 
 
 def get_requires_for_build_wheel(config_settings=None):
-    with _Kind("pure"):  # setuptools runs setup.py to list what it needs: without mypyc
+    with _kind("pure"):  # setuptools runs setup.py to list what it needs: without mypyc
         needed = list(_setuptools.get_requires_for_build_wheel(config_settings))
     choice = _choice()
     if choice == "1" or (choice == "auto" and compiler() is not None):
@@ -85,7 +83,7 @@ def build_wheel(wheel_directory, config_settings=None, metadata_directory=None):
              "tries the compiled core all the same)")
         return _pure(wheel_directory, config_settings, metadata_directory)
     try:
-        with _Kind("native"):
+        with _kind("native"):
             return _setuptools.build_wheel(wheel_directory, config_settings,
                                            metadata_directory)
     except (Exception, SystemExit) as error:
@@ -105,12 +103,12 @@ def _reason(error: BaseException) -> str:
 
 
 def _pure(wheel_directory, config_settings, metadata_directory):
-    with _Kind("pure"):
+    with _kind("pure"):
         return _setuptools.build_wheel(wheel_directory, config_settings, metadata_directory)
 
 
 def get_requires_for_build_editable(config_settings=None):
-    with _Kind("pure"):
+    with _kind("pure"):
         return _setuptools.get_requires_for_build_editable(config_settings)
 
 
@@ -118,21 +116,21 @@ def build_editable(wheel_directory, config_settings=None, metadata_directory=Non
     if _choice() == "1":
         _say(f"{CHOICE}=1 is ignored for an editable install (compiled modules would hide "
              "later edits of the sources); building pure Python")
-    with _Kind("pure"):
+    with _kind("pure"):
         return _setuptools.build_editable(wheel_directory, config_settings, metadata_directory)
 
 
 def prepare_metadata_for_build_wheel(metadata_directory, config_settings=None):
-    with _Kind("pure"):
+    with _kind("pure"):
         return _setuptools.prepare_metadata_for_build_wheel(metadata_directory, config_settings)
 
 
 def prepare_metadata_for_build_editable(metadata_directory, config_settings=None):
-    with _Kind("pure"):
+    with _kind("pure"):
         return _setuptools.prepare_metadata_for_build_editable(metadata_directory,
                                                                config_settings)
 
 
 def build_sdist(sdist_directory, config_settings=None):
-    with _Kind("pure"):
+    with _kind("pure"):
         return _setuptools.build_sdist(sdist_directory, config_settings)
