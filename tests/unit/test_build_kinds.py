@@ -19,8 +19,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-SOURCES = ("robox", "buildsys", "setup.py", "pyproject.toml", "README.md")
+from tests.unit.test_compiled_build import SOURCES, copy_project
 
 
 def _build(tmp_path: Path, **env_changes: str | None) -> tuple[subprocess.CompletedProcess,
@@ -28,14 +27,8 @@ def _build(tmp_path: Path, **env_changes: str | None) -> tuple[subprocess.Comple
     """`pip wheel -v` of a copy of the sources with the environment changed as given
     (None removes a variable); the run and the wheels it made."""
     src, wheels = tmp_path / "src", tmp_path / "wheels"
-    if not src.exists():
-        src.mkdir()
-        for name in SOURCES:
-            if (ROOT / name).is_dir():
-                shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns(
-                    "__pycache__", "*.so", "*.pyd", "build", "*.egg-info"))
-            else:
-                shutil.copy2(ROOT / name, src / name)
+    src.mkdir()
+    copy_project(SOURCES, src, "__pycache__", "*.so", "*.pyd", "build", "*.egg-info")
     env = dict(os.environ)
     for key, value in env_changes.items():
         if value is None:

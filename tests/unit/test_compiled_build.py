@@ -36,7 +36,7 @@ def _compiler() -> str | None:
     return shutil.which(cc)
 
 
-def _copy(names: tuple[str, ...], dest: Path, *skip: str) -> None:
+def copy_project(names: tuple[str, ...], dest: Path, *skip: str) -> None:
     """The project's files and directories `names` into `dest`, without `skip`."""
     for name in names:
         src = ROOT / name
@@ -49,7 +49,7 @@ def _copy(names: tuple[str, ...], dest: Path, *skip: str) -> None:
 @pytest.mark.skipif(_compiler() is None, reason="needs a C compiler for mypyc")
 def test_the_compiled_core_passes_the_firmware_models_tests(tmp_path):
     src, wheels, site, run = (tmp_path / d for d in ("src", "wheel", "site", "run"))
-    _copy(SOURCES, src, "__pycache__", "*.so", "*.pyd", "build", "*.egg-info")
+    copy_project(SOURCES, src, "__pycache__", "*.so", "*.pyd", "build", "*.egg-info")
     env = {k: v for k, v in os.environ.items() if k != "ROBOX_NATIVE"}  # the default
     built = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps",
                             "-w", str(wheels), str(src)],
@@ -76,7 +76,7 @@ def test_the_compiled_core_passes_the_firmware_models_tests(tmp_path):
 
     # the tests and what they read by path from the project's root; no package sources
     run.mkdir()
-    _copy(("tests", "bench", "buildsys", "setup.py", "pyproject.toml", "README.md",
+    copy_project(("tests", "bench", "buildsys", "setup.py", "pyproject.toml", "README.md",
            "robox/data"), run, "__pycache__", ".cache")
     env = {k: v for k, v in os.environ.items() if k != "ROBOX_NATIVE"}
     env["PYTHONPATH"] = str(site)
