@@ -57,9 +57,34 @@ def strtod(text: bytes) -> tuple[float, int]:
     return _strtod_at(text, 0)
 
 
+def _plain_number_end(text: bytes, i: int, point: bool) -> int:
+    """Where a plain number starting at `i` ends: a sign, decimal digits and (with
+    `point`) one decimal point, at least one digit, and no exponent or hexadecimal
+    prefix after it (-1: not such a number). Nearly every number a slicer writes
+    is one, and Python's float() and int() read it as strtod and strtol do."""
+    n = len(text)
+    j = i + 1 if i < n and (text[i] == 43 or text[i] == 45) else i  # + or -
+    k = j
+    while k < n and 48 <= text[k] <= 57:
+        k += 1
+    digits = k - j
+    if point and k < n and text[k] == 46:  # .
+        k += 1
+        m = k
+        while k < n and 48 <= text[k] <= 57:
+            k += 1
+        digits += k - m
+    if digits == 0 or (k < n and text[k] in b"eExX"):
+        return -1
+    return k
+
+
 def _strtod_at(text: bytes, start: int) -> tuple[float, int]:
     """strtod over `text` from `start` on (no copy of the rest is made)."""
     i = _skip_space(text, start)
+    k = _plain_number_end(text, i, True)
+    if k >= 0:
+        return float(text[i:k]), k - start
     j = i + 1 if i < len(text) and text[i] in b"+-" else i
     if text[j : j + 2] in (b"0x", b"0X"):  # only then can it be a hexadecimal float
         match = _HEX.match(text, i)
@@ -83,7 +108,11 @@ def _strtod_at(text: bytes, start: int) -> tuple[float, int]:
 
 
 def _leading_integer(text: bytes, start: int = 0) -> int:
-    match = _INT.match(text, _skip_space(text, start))
+    i = _skip_space(text, start)
+    k = _plain_number_end(text, i, False)
+    if k >= 0:
+        return int(text[i:k])
+    match = _INT.match(text, i)
     return int(match.group()) if match else 0
 
 

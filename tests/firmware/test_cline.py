@@ -1,0 +1,107 @@
+"""The firmware's number reading (cline) against the C library's own strtod and strtol.
+
+get_float, get_int and get_uint are strtod, strtol and strtoul from the byte after
+a parameter's letter. The C library of this machine is the oracle: every value and
+every count of bytes consumed must be the same, for plain slicer numbers (read by a
+fast path) and for everything else a hostile line can hold (signs alone, points alone,
+exponents, hexadecimal floats, inf, nan, white space, trailing garbage).
+"""
+
+import ctypes
+import ctypes.util
+import math
+import struct
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from robox.firmware.cline import Line, strtod, strtol, strtoul
+
+_LIBC_NAME = ctypes.util.find_library("c")
+pytestmark = pytest.mark.skipif(
+    _LIBC_NAME is None or ctypes.sizeof(ctypes.c_long) != 8,
+    reason="needs a C library with 64-bit long (the recordings' PC)")
+
+if _LIBC_NAME is not None:
+    _libc = ctypes.CDLL(_LIBC_NAME)
+    _libc.strtod.restype = ctypes.c_double
+    _libc.strtod.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_char_p)]
+    _libc.strtol.restype = ctypes.c_long
+    _libc.strtol.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_char_p), ctypes.c_int]
+    _libc.strtoul.restype = ctypes.c_ulong
+    _libc.strtoul.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_char_p), ctypes.c_int]
+
+
+def _c_call(function, text: bytes, *base: int):
+    buf = ctypes.create_string_buffer(text)
+    end = ctypes.c_char_p()
+    value = function(buf, ctypes.byref(end), *base)
+    return value, ctypes.cast(end, ctypes.c_void_p).value - ctypes.addressof(buf)
+
+
+def _same_double(a: float, b: float) -> bool:
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) and math.isnan(b)
+    return a == b and math.copysign(1.0, a) == math.copysign(1.0, b)
+
+
+def _c_float(value: float) -> float:
+    try:
+        return struct.unpack("<f", struct.pack("<f", value))[0]
+    except OverflowError:
+        return math.copysign(math.inf, value)
+
+
+_CHARS = st.sampled_from(list(b"0123456789.+-eExXpPabcdfinINFtyAN()_ \t"))
+_HOSTILE = st.lists(_CHARS, max_size=16).map(bytes)
+_PLAIN = st.builds(
+    lambda sign, whole, point, frac, tail: sign + whole + point + frac + tail,
+    st.sampled_from([b"", b"-", b"+"]),
+    st.text("0123456789", max_size=12).map(str.encode),
+    st.sampled_from([b"", b"."]),
+    st.text("0123456789", max_size=12).map(str.encode),
+    st.sampled_from([b"", b" ", b" Y2", b"e", b"e3", b"E-2", b"x", b"\n", b";c", b"X"]))
+_TEXTS = st.one_of(_PLAIN, _HOSTILE)
+
+
+@settings(max_examples=4000, deadline=None)
+@given(_TEXTS)
+def test_strtod_reads_what_the_c_library_reads(text):
+    value, used = strtod(text)
+    c_value, c_used = _c_call(_libc.strtod, text)
+    assert used == c_used, text
+    assert _same_double(value, c_value), (text, value, c_value)
+
+
+@settings(max_examples=4000, deadline=None)
+@given(_TEXTS)
+def test_strtol_and_strtoul_read_what_the_c_library_reads(text):
+    assert strtol(text) == _c_call(_libc.strtol, text, 10)[0], text
+    assert strtoul(text) == _c_call(_libc.strtoul, text, 10)[0], text
+
+
+@settings(max_examples=2000, deadline=None)
+@given(_TEXTS)
+def test_a_parameter_is_the_c_float_of_strtod_after_its_letter(text):
+    line = Line(b"G1 X" + text)
+    expected = _c_float(_c_call(_libc.strtod, line.text[4:])[0])  # the line ends at ; ( CR LF
+    assert _same_double(line.float("X"), expected), text
+
+
+@pytest.mark.parametrize("text, value, used", [
+    (b"12.5 Y3", 12.5, 4),      # the fast path: a plain decimal, then more of the line
+    (b"-0", -0.0, 2),           # its sign kept
+    (b"5.", 5.0, 2),            # a point with no digits after it belongs to the number
+    (b".5", 0.5, 2),
+    (b"1e3", 1000.0, 3),        # an exponent: not the fast path, the same reading
+    (b"1e", 1.0, 1),            # an exponent with no digits is not part of the number
+    (b"0x1p4", 16.0, 5),        # a hexadecimal float
+    (b"0x", 0.0, 1),            # the 0 alone
+    (b"+", 0.0, 0),             # no number at all
+    (b" \t7", 7.0, 3),          # leading white space is skipped and counted
+])
+def test_strtod_examples(text, value, used):
+    assert _c_call(_libc.strtod, text) == (value, used)  # the oracle agrees with the table
+    got = strtod(text)
+    assert _same_double(got[0], value) and got[1] == used
