@@ -10,12 +10,12 @@ exponents, hexadecimal floats, inf, nan, white space, trailing garbage).
 import ctypes
 import ctypes.util
 import math
-import struct
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from robox.firmware.carith import struct_f32
 from robox.firmware.cline import Line, strtod, strtol, strtoul
 
 _LIBC_NAME = ctypes.util.find_library("c")
@@ -44,13 +44,6 @@ def _same_double(a: float, b: float) -> bool:
     if math.isnan(a) or math.isnan(b):
         return math.isnan(a) and math.isnan(b)
     return a == b and math.copysign(1.0, a) == math.copysign(1.0, b)
-
-
-def _c_float(value: float) -> float:
-    try:
-        return struct.unpack("<f", struct.pack("<f", value))[0]
-    except OverflowError:
-        return math.copysign(math.inf, value)
 
 
 _CHARS = st.sampled_from(list(b"0123456789.+-eExXpPabcdfinINFtyAN()_ \t"))
@@ -85,7 +78,7 @@ def test_strtol_and_strtoul_read_what_the_c_library_reads(text):
 @given(_TEXTS)
 def test_a_parameter_is_the_c_float_of_strtod_after_its_letter(text):
     line = Line(b"G1 X" + text)
-    expected = _c_float(_c_call(_libc.strtod, line.text[4:])[0])  # the line ends at ; ( CR LF
+    expected = struct_f32(_c_call(_libc.strtod, line.text[4:])[0])  # the line ends at ; ( CR LF
     assert _same_double(line.float("X"), expected), text
 
 
