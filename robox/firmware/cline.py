@@ -59,9 +59,11 @@ def strtod(text: bytes) -> tuple[float, int]:
 
 def _plain_number_end(text: bytes, i: int, point: bool) -> int:
     """Where a plain number starting at `i` ends: a sign, decimal digits and (with
-    `point`) one decimal point, at least one digit, and no exponent or hexadecimal
-    prefix after it (-1: not such a number). Nearly every number a slicer writes
-    is one, and Python's float() and int() read it as strtod and strtol do."""
+    `point`, for strtod) one decimal point and no exponent or hexadecimal prefix
+    after it; at least one digit (-1: not such a number). Nearly every number a
+    slicer writes is one, and Python's float() and int() read it as strtod and
+    strtol do (strtol in base 10 stops at any letter, so an integer needs no check
+    of what follows)."""
     n = len(text)
     j = i + 1 if i < n and (text[i] == 43 or text[i] == 45) else i  # + or -
     k = j
@@ -74,7 +76,7 @@ def _plain_number_end(text: bytes, i: int, point: bool) -> int:
         while k < n and 48 <= text[k] <= 57:
             k += 1
         digits += k - m
-    if digits == 0 or (k < n and text[k] in b"eExX"):
+    if digits == 0 or (point and k < n and text[k] in b"eExX"):
         return -1
     return k
 
