@@ -596,7 +596,31 @@ class Motion:
         x: i64
         root: i64 = 0
         rooted: i64 = -1  # the radicand `root` is the root of (-1: none yet)
+        # While the square root holds the speed (below cruise, above the floor) it stays
+        # where it is until the radicand falls below root^2, at the length `lowest`: the
+        # interrupts up to there repeat one period, and are counted together.
+        holding = False
+        lowest: i64 = 0
+        k: i64
         while True:
+            if holding:
+                k = length - lowest
+                if most - count < k:
+                    k = most - count
+                x = (end - tick) // period + 1  # the interrupt that passes `end`
+                if x < k:
+                    k = x
+                if k > 1:
+                    length -= k
+                    count += k
+                    last = tick + (k - 1) * period
+                    tick += k * period
+                    capped = length
+                    if capped > 0x00800000:
+                        capped = 0x00800000
+                    rooted = (capped << 1) * a + c
+                    if count >= most or tick > end:
+                        break
             length -= 1
             n = s + (period if period < maxp else maxp) * a
             if length < sure:
@@ -613,13 +637,32 @@ class Motion:
                 v = root << 14
                 if v < n:
                     n = v
+                    holding = unwrapped and floor_speed < v < top
+                    if holding:
+                        lowest = -(-(root * root - c) // (2 * a))
+                        if lowest < 0:
+                            lowest = 0
+                else:
+                    holding = False
             if top < n:
                 n = top
             if n < floor_speed:
                 n = floor_speed
             settled = n == s and (n == top or n == floor_speed)  # noqa: SIM109 (no tuple)
             s = n
-            period = ((0x10000 << 12) // s) & 0xFFFF
+            # the period, (2^28 // s) & 0xFFFF (the mask is idle: s is at least the floor),
+            # moves by a unit or two from the last one while the speed ramps: found by
+            # checking its product with s, the quotient worked out only past that
+            if period * s > 0x10000000:
+                period -= 1
+                if period * s > 0x10000000:
+                    period = 0x10000000 // s
+            elif (period + 1) * s <= 0x10000000:
+                period += 1
+                if (period + 1) * s <= 0x10000000:
+                    period = 0x10000000 // s
+            if period == 0:
+                holding = False
             last = tick
             tick += period
             count += 1

@@ -461,10 +461,11 @@ def reference_ramp(length, speed, end_speed, a, s, period, maxp, tick, limit, ca
         n = max(floor_speed, min(v, s + min(period, maxp) * a, top))
         settled = n == s and n in (top, floor_speed)
         s, period = n, ((0x10000 << 12) // n) & 0xFFFF
+        last = tick
         tick += period
         count += 1
         if settled or count >= cap or tick > limit:
-            return count, length, s, period, tick
+            return count, length, s, period, last, tick
 
 
 @settings(max_examples=400, deadline=None)
@@ -472,16 +473,20 @@ def reference_ramp(length, speed, end_speed, a, s, period, maxp, tick, limit, ca
        speed=st.integers(2, 0xFFFF), end_speed=st.one_of(st.integers(0, 300),
                                                           st.integers(0, 0xFFFF)),
        a=st.one_of(st.integers(1, 255), st.just(255)), start=st.integers(2, 0xFFFF),
-       cap=st.one_of(st.none(), st.integers(1, 5000)))
+       cap=st.one_of(st.none(), st.integers(1, 5000)),
+       limit=st.one_of(st.just(3 << 32), st.integers(0, 1 << 22)))
 # cruising at 5 << 12, the root's 1 << 14 (one step left) is below it: the bound on the
 # root rounds the cruise speed up, not down
-@example(length=2, speed=5, end_speed=0, a=1, start=5, cap=None)
+@example(length=2, speed=5, end_speed=0, a=1, start=5, cap=None, limit=3 << 32)
+# slowing down at a held root, the interrupt that passes the limit ends a run part-way
+@example(length=3000, speed=0xFFFF, end_speed=0, a=40, start=200, cap=None, limit=60_000)
 def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end_speed, a,
-                                                              start, cap):
+                                                              start, cap, limit):
     """The tight ramp loop (the model leaves out the square root while it cannot be the
-    least speed) against the interrupt's arithmetic taken literally: short blocks, where
-    the square root brings the speed down, and blocks past 2^23 steps, where its
-    radicand wraps at 32 bits when the end speed is high."""
+    least speed, and counts together the interrupts at which it holds the speed) against
+    the interrupt's arithmetic taken literally: short blocks, where the square root
+    brings the speed down, and blocks past 2^23 steps, where its radicand wraps at 32
+    bits when the end speed is high; stopped by the cap, the block's end or the limit."""
     from tests.firmware.wire import Wire
     motion = _ramp_motion.setdefault("m", Wire().fw.motion)
     motion.pa["acceleration"] = a
@@ -492,16 +497,15 @@ def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end
     s = min(start, speed) << 12
     motion.speed_x4k, motion.timer_period = s, ((0x10000 << 12) // s) & 0xFFFF
     motion.next_tick, motion.active = 0, True
-    limit = 3 << 32
     if cap is None and length > 3000:
         cap = 20_000  # a speed the square root holds below cruise runs to the block's end
     expected = reference_ramp(length, speed, end_speed, a, s, motion.timer_period, maxp, 0,
                               limit, cap)
     before = motion.interrupts
     motion._singles(blk, limit, cap)
-    count, left, s, period, tick = expected
+    count, left, s, period, last, tick = expected
     assert (motion.interrupts - before, blk.length, motion.speed_x4k, motion.timer_period,
-            motion.next_tick) == (count, left, s, period, tick)
+            motion.last_tick, motion.next_tick) == (count, left, s, period, last, tick)
 
 
 _ramp_motion: dict = {}
