@@ -146,7 +146,7 @@ class Line:
     # A parameter is found by its letter's first occurrence (strchr) and read from the
     # byte after it, in place.
     def has(self, letter: str) -> bool:
-        return self.text.find(ord(letter)) >= 0
+        return ord(letter) in self.text  # (`in` takes no argument parsing, find() does)
 
     def has_float(self, letter: str) -> bool:
         at = self.text.find(ord(letter))

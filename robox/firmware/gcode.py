@@ -22,7 +22,6 @@ owned by the command object, which reads no more input until it is done
 from __future__ import annotations
 
 from collections.abc import Generator
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
 
 from robox.firmware.carith import f32, to_ulong
@@ -40,13 +39,24 @@ SLIP_COUNT_DECAY_S: Final = 300.0
 REPORTING: Final = {105, 111, 112, 113, 114, 115, 119, 503, 997, 999}
 
 
-@dataclass(frozen=True)
 class Wait:
-    """What a suspended line waits for: motion, a time, a heater, or just the next pass."""
+    """What a suspended line waits for: motion, a time, a heater, or just the next pass.
+    (A plain class, not a dataclass: compiled, making one and reading it are native.)"""
 
-    motion: str | None = None  # "ready": room in the motion queue; "empty": motion done
-    until: float | None = None
-    heater: str | None = None
+    __slots__ = ("heater", "motion", "until")
+
+    def __init__(self, motion: str | None = None, until: float | None = None,
+                 heater: str | None = None) -> None:
+        self.motion = motion  # "ready": room in the motion queue; "empty": motion done
+        self.until = until
+        self.heater = heater
+
+    def next_pass(self) -> bool:
+        """Whether it waits for nothing but the next pass."""
+        return self.motion is None and self.until is None and self.heater is None
+
+    def __repr__(self) -> str:
+        return f"Wait(motion={self.motion!r}, until={self.until!r}, heater={self.heater!r})"
 
 
 # A routine that may wait, as a generator: it yields what it waits for while the firmware
@@ -186,7 +196,7 @@ class Job:
     def runnable(self) -> bool:
         """True when the next pass has something to do at once (the clock must not jump)."""
         if self.current is not None:
-            return self.waiting is None or self.waiting == NEXT_PASS
+            return self.waiting is None or self.waiting.next_pass()
         if self.abort_flag:
             return self.fw.motion.idle()  # the abort ends once motion has stopped
         if line_length(self.execute_buffer):

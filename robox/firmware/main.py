@@ -19,7 +19,7 @@ from robox.firmware.command import Command
 from robox.firmware.eeprom import Eeproms
 from robox.firmware.error_flags import ErrorFlags
 from robox.firmware.file_system import FileSystem
-from robox.firmware.gcode import NEXT_PASS, Job
+from robox.firmware.gcode import Job
 from robox.firmware.heaters import Heaters
 from robox.firmware.motion import Motion
 from robox.firmware.parameters import HoursCounter, Parameters
@@ -148,7 +148,8 @@ class Firmware:
     def _busy_apart_from_light(self) -> bool:
         usb = self.hw.usb
         command = self.command
-        line_ready = command.line is not None and command.waiting in (None, NEXT_PASS)
+        line_ready = command.line is not None and (command.waiting is None
+                                                   or command.waiting.next_pass())
         return bool((usb.received and not command.deaf) or line_ready
                     or (usb.arriving and self.job.running)
                     or self.heaters.conversion_ready

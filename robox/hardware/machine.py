@@ -210,9 +210,10 @@ class Machine:
 
     def actuated(self, axis: int) -> bool:
         """Whether the axis's switch (E, D: the filament sensor) is actuated."""
-        name = AXES[axis]
-        if name in self.stuck:
-            return self.stuck[name]
+        if self.stuck:
+            name = AXES[axis]
+            if name in self.stuck:
+                return self.stuck[name]
         if axis == X:
             return self.x <= 0
         if axis == Y:
@@ -229,7 +230,7 @@ class Machine:
 
     def z_top_pin(self) -> int:
         """The Z-top input reads 0 when actuated."""
-        if "Z+" in self.stuck:
+        if self.stuck and "Z+" in self.stuck:
             return int(not self.stuck["Z+"])
         return int(self.nozzle_height() < Z_TOP_STEPS)
 
@@ -287,11 +288,14 @@ class Machine:
         self.hand[axis] += mm
 
     def hand_busy(self) -> bool:
-        return any(v > 0 for v in self.hand.values())
+        hand = self.hand
+        return hand[E] > 0 or hand[D] > 0
 
     def advance(self, seconds: float) -> None:
         for heater in self.heaters.values():
             heater.advance(seconds)
+        if not self.hand_busy():
+            return
         for axis, left in self.hand.items():
             f = self.filament[axis]
             if left <= 0 or f is None:
