@@ -9,7 +9,7 @@ defaults are used instead.
 from __future__ import annotations
 
 import struct
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Any, Final
 
 from robox.firmware.carith import to_uchar
 from robox.firmware.cline import Line, float32
@@ -79,6 +79,8 @@ class Parameters:
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
+        self.values: dict[str, Any] = {}
+        self.lists: dict[str, list] = {}  # axis_list()'s, made at first use
 
     def initialise(self) -> None:
         self.defaults()
@@ -89,14 +91,27 @@ class Parameters:
         return struct.unpack("<I", self.fw.hw.flash.read(DEFAULT_OFFSET, 4))[0]
 
     def defaults(self) -> None:
-        # a fresh copy of the factory settings, worked out once (every power-up needs them)
-        self.values = {name: dict(value) if isinstance(value, dict) else value
-                       for name, value in _FACTORY.items()}
+        """The factory settings (power-up, M502), in place: the motion and position
+        objects hold this very dict, as the firmware's objects read its one `pa`."""
+        self.values.clear()
+        self.values.update({name: dict(value) if isinstance(value, dict) else value
+                            for name, value in _FACTORY.items()})
+        self.lists.clear()
+
+    def axis_list(self, name: str) -> list:
+        """A per-axis parameter as a list in axis order (X Y Z E D B), for code that
+        reads it for every block; made again after a G-code changes it (the per-axis
+        values change only through set_from_line). Read it, never change it."""
+        got = self.lists.get(name)
+        if got is None:
+            got = self.lists[name] = [self.values[name][axis] for axis in AXES]
+        return got
 
     # ------------------------------------------------------------ G-codes
     def set_from_line(self, code: int, line: Line) -> None:
         """A parameter-setting M-code, as gcode.c handles each."""
         v = self.values
+        self.lists.clear()
         per_axis = {92: ("steps_per_unit", line.float), 202: ("max_speed", line.float),
                     510: ("invert_direction", line.bool), 520: ("travel", line.float),
                     526: ("invert_switch", line.bool), 527: ("home_distance", line.float)}

@@ -170,6 +170,29 @@ def test_m502_restores_defaults_and_m501_reloads(wire):
     assert wire.fw.parameters.values["steps_per_unit"]["X"] == 90.0
 
 
+@pytest.mark.parametrize(("lines", "spu"), [(("M92 X90",), 90.0),
+                                             (("M92 X90", "M502"), 133.7),
+                                             (("M92 X90", "M500", "M502", "M501"), 90.0)])
+def test_moves_take_the_steps_per_unit_in_force(wire, lines, spu):
+    """A move is made with the steps per unit the parameters hold now: M92 changes them,
+    M502 brings back the factory's (in the parameters the motion reads, not a copy),
+    M501 the saved ones."""
+    run_lines(wire, "G92 X0 Y0 Z0", *lines, "G1 X10 F3000")
+    wire.printer.run_until(lambda: wire.fw.motion.empty(), 10.0)
+    # in 2 mm segments of whole steps, the rounding carried from one to the next
+    assert abs(wire.printer.hw.machine.x - 10 * spu) <= 1
+
+
+@pytest.mark.parametrize(("lines", "x"), [(("M520 X5",), 5.0), (("M520 X5", "M502"), 10.0)])
+def test_m502_brings_back_the_travel_a_move_is_held_to(wire, lines, x):
+    """M520 shortens X's travel, M502 restores the factory's 210 mm for the moves that
+    follow."""
+    run_lines(wire, "G28 X Y", *lines)
+    at_zero = wire.printer.hw.machine.x
+    run_lines(wire, "G1 X10 F3000")
+    assert abs(wire.printer.hw.machine.x - at_zero - x * 133.7) <= 1
+
+
 def test_powered_off_whilst_hot(wire):
     run_lines(wire, "M104 S200", "M109")
     wire.printer.run_until(lambda: False, 0.1)
