@@ -29,7 +29,6 @@ firmware would spin `do_everything_else()`.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any, Final
 
 from robox.firmware.carith import (
@@ -261,14 +260,12 @@ class Motion:
             self.fw.errors.set(ErrorBit.Z_TOP_SWITCH)
 
     def _manage_motor_currents(self) -> None:
-        if self.empty() or not any(self.block[n].inc[B] for n in self._queued_indices()):
-            self.fw.heaters.force_nozzles_off(False)
-
-    def _queued_indices(self) -> Iterator[int]:
         n = self.buffer_out
-        while n != self.buffer_in:
-            yield n
+        while n != self.buffer_in:  # (a loop, not any() over a generator: native)
+            if self.block[n].inc[B]:
+                return
             n = (n + 1) & MASK
+        self.fw.heaters.force_nozzles_off(False)
 
     def motors_off(self) -> None:
         """M84: every driver disabled (positions are kept; nothing pushes the axes)."""
@@ -300,8 +297,8 @@ class Motion:
         was queued (if not, the move was shorter than a step and `moves` is all 0).
         A caller that queues blocks on every pass waits for room itself, sparing a
         generator per block."""
-        pa = self.pa
-        spu: list[float] = [pa["steps_per_unit"][a] for a in AXES]
+        parameters = self.fw.parameters
+        spu: list[float] = parameters.axis_list("steps_per_unit")
         steps = [0] * 6
         length = 0
         # An axis that does not move costs nothing below: every float32() of a zero is
@@ -319,8 +316,11 @@ class Motion:
         blk.end_speed = 0
         blk.check_z_top = check_z_top
         if feed_rate > 0.0:
-            max_speed: list[float] = [pa["max_speed"][a] for a in AXES]
-            if (speed_limit > 0.0 and math.isfinite(sum(moves))
+            max_speed: list[float] = parameters.axis_list("max_speed")
+            total = 0.0
+            for i in range(6):  # (sum() and math.isfinite() are generic calls compiled)
+                total += moves[i]
+            if (speed_limit > 0.0 and total - total == 0.0
                     and all(m > 0.0 for m in max_speed)):
                 min_duration = 0.0
                 for i in range(6):

@@ -192,8 +192,8 @@ class Machine:
             self.wheel_passed[axis] += n
 
     def nozzle_hot(self, axis: int) -> bool:
-        return max(h.temperature for name, h in self.heaters.items()
-                   if name.startswith("nozzle")) >= MELT_C
+        heaters = self.heaters  # (either nozzle: both melt the one path's filament)
+        return heaters["nozzle0"].sensed >= MELT_C or heaters["nozzle1"].sensed >= MELT_C
 
     # ------------------------------------------------------------ inputs
     def nozzle_height(self) -> float:
