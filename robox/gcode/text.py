@@ -66,7 +66,16 @@ def words(line: bytes) -> tuple[str, dict[str, str]]:
     """('G1', {'X': '10', 'E': '.5'}) from b'G1 X10 E.5'; letters upper-cased. Words may
     be run together (b'G1X10E.5'), as some slicers write them: a word is any character
     but a blank, then everything up to the next letter or blank."""
-    out = _WORD.findall(line.decode("ascii").upper())
+    text = line.decode("ascii").upper()
+    parts = text.split()
+    for part in parts:
+        if part[1:].isupper():  # a letter after the first: words run together
+            break
+    else:  # one word per blank-separated part, as nearly every slicer writes them
+        if not parts:
+            return "", {}
+        return parts[0], {part[0]: part[1:] for part in parts[1:]}
+    out = _WORD.findall(text)
     if not out:
         return "", {}
     (letter, number), rest = out[0], out[1:]
