@@ -140,10 +140,13 @@ class Eeproms:
         if fw is None:
             return
         now = self.clock.now
-        statuses = [s.status for s in self.states]
-        if statuses != self.previous:
+        states, previous = self.states, self.previous
+        if states[0].status is not previous[0] or states[1].status is not previous[1] \
+                or states[2].status is not previous[2]:  # (no list made on every pass)
+            statuses = [s.status for s in states]
             appeared = [s is VALID and p is not VALID
-                        for s, p in zip(statuses, self.previous, strict=True)]
+                        for s, p in zip(statuses, previous, strict=True)]
+            self.previous = statuses
             if appeared[HEAD]:
                 fw.file_system.check_for_head_change(self.head_dual_material())
             if any(appeared):
@@ -157,7 +160,6 @@ class Eeproms:
                                     self.float_at(EepromIndex.HEAD, 0xB8, 0.0) + 0.002)
             fw.position.update_reel_filament_length()
             self.update_due = now + UPDATE_PERIOD_S
-        self.previous = statuses
 
     def _maintain_chips(self) -> None:
         now = self.clock.now

@@ -216,9 +216,10 @@ class Motion:
         pa = self.pa
         m = self.machine
         now = self.fw.clock.now
+        invert = self.fw.parameters.axis_list("invert_switch")
         for i in range(2):
             axis = E + i  # then D
-            if m.switch_pin(axis) == pa["invert_switch"][AXES[axis]]:  # no filament
+            if m.switch_pin(axis) == invert[axis]:  # no filament
                 if now - self.holdoff_since < FILAMENT_HOLDOFF_S or not self.empty():
                     self.autoload_counter[i] = 0
                 elif m.index_wheel(axis) != (self.autoload_counter[i] & 1):
@@ -232,7 +233,8 @@ class Motion:
             until_slip = self.what == UNTIL_SLIP
             threshold_mm = pa["filament_until_slip_threshold" if until_slip
                               else "filament_slip_threshold"]
-            temp = float32(float32(float32(pa["steps_per_unit"][AXES[axis]] * threshold_mm)
+            spu: float = self.fw.parameters.axis_list("steps_per_unit")[axis]
+            temp = float32(float32(float32(spu * threshold_mm)
                                    * self.fw.position.filament_multiplier(i)) * 65536.0)
             threshold = int(temp) if temp < 2147483648.0 else 0x7FFFFFFF
             if until_slip and self.filament_slip:

@@ -12,5 +12,9 @@ class SimClock:
         exactly where n single passes would)."""
         if seconds < 0:
             raise ValueError("time does not run backwards")
-        for _ in range(times):
-            self.now += seconds
+        now = self.now
+        left = times
+        while left > 0:  # (a float and a countdown: compiled, neither is boxed)
+            now += seconds
+            left -= 1
+        self.now = now
