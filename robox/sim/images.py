@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import os
-
-import numpy as np
+import random
 
 from robox.formats import eeprom as fmt
 from robox.formats.firmware import (
@@ -26,7 +25,7 @@ def firmware_image(revision: str = DEFAULT_REVISION, size: int = IMAGE_BYTES,
     """A stand-in firmware image: deterministic content, the revision marker, a valid
     anti-checksum at 0xBC. The model runs its own code; the image gives the flash the
     bytes a real one would (size, word sum, version, revision)."""
-    body = bytearray(np.random.default_rng(seed).integers(0, 256, size, dtype=np.uint8))
+    body = bytearray(random.Random(seed).randbytes(size))  # (not numpy: start-up time)
     body[DEFAULT_OFFSET : DEFAULT_OFFSET + 4] = bytes(4)
     marker = REVISION_MARKER + revision.encode("ascii")[:8].ljust(8, b"\0")
     body[0x200 : 0x200 + len(marker)] = marker

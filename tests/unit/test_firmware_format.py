@@ -31,6 +31,13 @@ def test_word_sum_matches_struct(data):
     assert fw.word_sum(data) == struct_sum(data)
 
 
+@pytest.mark.parametrize("extra", [0, 3, 4, 7])
+def test_word_sum_either_side_of_the_numpy_threshold_matches_struct(extra):
+    data = np.random.default_rng(extra).integers(
+        0, 256, fw.NUMPY_SUM_BYTES + extra, dtype=np.uint8).tobytes()
+    assert fw.word_sum(data) == struct_sum(data)
+
+
 def test_word_sum_is_byte_shifted_by_position():
     assert fw.word_sum(b"\x01\x02\x03\x04\x05") == 0x04030201 + 0x05
 
