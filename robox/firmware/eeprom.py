@@ -485,7 +485,7 @@ class Eeproms:
             loading.append((state, chip))
         return settled, loading, most
 
-    def _inert_steps(self, state: EepromState, chip, at: float) -> int:
+    def _inert_steps(self, state: EepromState, chip: EepromChip | None, at: float) -> int:
         """How many steps from a pass at `at` on are acknowledged reads that change
         nothing but this EEPROM's place in its bank (a bank's last byte is left out: its
         step loads or verifies the bank, which another object, or quiet(), sees)."""
@@ -506,7 +506,7 @@ class Eeproms:
             i += 1
         return i
 
-    def _take_reads(self, state: EepromState, chip, n: int) -> None:
+    def _take_reads(self, state: EepromState, chip: EepromChip, n: int) -> None:
         """`n` inert steps of a loading or verifying EEPROM, the last at the clock's now."""
         if n == 0:
             return

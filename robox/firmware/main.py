@@ -198,22 +198,29 @@ class Firmware:
                 # a line part-way (waiting on a heater, say) looks again at every pass
                 return PASS_S, 1
         now = self.clock.now
-        events = [now + IDLE_STEP_S]
+        # the nearest moment anything waits for (compared one by one: compiled, native
+        # floats, where min() over a list would box each)
+        horizon = now + IDLE_STEP_S
+        soon = now + HEATER_STEP_S
         kind = None
         for wait in [self.job.waiting, self.command.waiting]:  # (a list: compiled, native)
             if wait is None:
                 continue
-            if wait.until is not None:
-                events.append(wait.until)
-            if wait.heater is not None:
-                events.append(now + HEATER_STEP_S)
+            until = wait.until
+            if until is not None and until < horizon:
+                horizon = until
+            if wait.heater is not None and soon < horizon:
+                horizon = soon
             if wait.motion == "ready" or (wait.motion == "empty" and kind is None):
                 kind = wait.motion
-        if self.heaters.any_on():
-            events.append(now + HEATER_STEP_S)
-        events += [self.eeproms.update_due,
-                   self.heaters.conversion_started + 1.0]
-        horizon = min(events)
+        if soon < horizon and self.heaters.any_on():
+            horizon = soon
+        due = self.eeproms.update_due
+        if due < horizon:
+            horizon = due
+        due = self.heaters.conversion_started + 1.0
+        if due < horizon:
+            horizon = due
         if limit is not None:
             horizon = min(horizon, now + limit)
         if light:  # light passes, then the pass that sees what they led to
@@ -297,7 +304,8 @@ class Firmware:
                 return True
             if self.clock.now >= end:
                 return False
-            self.run_pass(*self.plan(max(PASS_S, end - self.clock.now)))
+            step, passes = self.plan(max(PASS_S, end - self.clock.now))
+            self.run_pass(step, passes)  # (not *plan(): compiled, a native call)
         return condition()
 
     # ------------------------------------------------------------- debug

@@ -255,7 +255,7 @@ class Position:
             moves[i] = f32(moves[i] / f32(segments))
         for n in (0, 1):
             booked = moves[E + n] * segments
-            if math.isfinite(booked):
+            if booked - booked == 0.0:  # finite (math.isfinite() is a generic call compiled)
                 self.extruded_mm[n] += booked
         left = segments
         motion = self.motion
