@@ -12,6 +12,7 @@ counted, not run (docs/firmware-model.md, "The loop").
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -291,22 +292,23 @@ class Firmware:
             # next pass (which may start or pause a job before it) counts only its own
             self.hours.maintain()
 
-    def run_until(self, condition, timeout: float = 3600.0,
+    def run_until(self, condition: Callable[[], bool] | None, timeout: float = 3600.0,
                   max_passes: int = 50_000_000) -> bool:
-        """Run passes until `condition()` holds or `timeout` simulated seconds pass.
+        """Run passes until `condition()` holds or `timeout` simulated seconds pass (None:
+        no condition, the whole timeout runs; it spares a call after every pass).
 
         The condition is looked at after every pass, as a USB host sees the printer: a
         reply sent while a line waits (a Pronterface line inside maintain_commands, say) is
         there to read at once, the lines before it answered."""
         end = self.clock.now + timeout
         for _ in range(max_passes):
-            if condition():
+            if condition is not None and condition():
                 return True
             if self.clock.now >= end:
                 return False
             step, passes = self.plan(max(PASS_S, end - self.clock.now))
             self.run_pass(step, passes)  # (not *plan(): compiled, a native call)
-        return condition()
+        return condition is not None and condition()
 
     # ------------------------------------------------------------- debug
     def debug_text(self) -> str:

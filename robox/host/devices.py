@@ -139,7 +139,7 @@ def _sim(directory: Path, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Iterator[Prin
         device = usb.core.find(idVendor=VENDOR_ID, idProduct=PRODUCT_ID, backend=backend)
 
         def idle(seconds: float) -> None:
-            virtual.run_until(lambda: False, max(seconds, SIM_STEP_S))
+            virtual.run_until(None, max(seconds, SIM_STEP_S))
 
         printer = Printer(UsbTransport(device), timeout_ms, idle=idle)
         printer.virtual = virtual

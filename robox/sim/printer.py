@@ -182,6 +182,8 @@ class VirtualPrinter:
         self.save_chips()
 
     def run_until(self, condition, timeout: float = 3600.0) -> bool:
+        """Firmware.run_until, then the chips' files brought up to date (condition None:
+        run the whole timeout)."""
         done = self.firmware.run_until(condition, timeout)
         self.save_chips()
         return done

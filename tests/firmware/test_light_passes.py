@@ -277,3 +277,17 @@ def test_inert_passes_says_how_many_passes_run_inert_passes_runs(name):
         p.firmware.run_pass(0.001)
     assert eeproms.all_quiet() or name == "reel blank"
     assert max(runs) > 50  # long runs of reads were predicted, not only single steps
+
+
+def test_run_until_with_no_condition_runs_the_whole_timeout():
+    """No condition (a host idling beside a virtual printer) runs the timeout through and
+    ends where a condition that never holds ends, pass for pass."""
+    ends = []
+    for condition in (None, lambda: False):
+        printer = VirtualPrinter(media=fresh())
+        fw = printer.firmware
+        start = fw.clock.now
+        assert printer.run_until(condition, 3.0) is False
+        assert fw.clock.now >= start + 3.0
+        ends.append((fw.clock.now, fw.whole_passes, outcome(printer)))
+    assert ends[0] == ends[1]
