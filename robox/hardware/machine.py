@@ -42,8 +42,9 @@ Z: Final = 2
 E: Final = 3
 D: Final = 4
 B: Final = 5
+X_STEPS_PER_MM: Final = 133.7  # (a Final float: compiled, a constant, not a lookup)
 # not Final: mypyc leaves a Final tuple of floats unset (NameError when read)
-STEPS_PER_MM = (133.7, 133.7, 6400.0, 747.0, 747.0, 2500.0)
+STEPS_PER_MM = (X_STEPS_PER_MM, 133.7, 6400.0, 747.0, 747.0, 2500.0)
 ZA_X_MM: Final = -37.546
 ZB_X_MM: Final = 251.5
 Z_TOP_MM: Final = 95.0
@@ -130,13 +131,16 @@ class Machine:
     zb: int = 0
     b: int = 0
     gantry_rotation: bool = False  # ZA runs the other way (the firmware's gantry levelling)
-    filament: dict[int, Filament | None] = field(default_factory=lambda: {E: None, D: None})
-    wheel_passed: dict[int, int] = field(default_factory=lambda: {E: 0, D: 0})
-    wheel_base: dict[int, bool] = field(default_factory=lambda: {E: True, D: False})
-    wheel_slipping: dict[int, bool] = field(default_factory=lambda: {E: False, D: False})
+    # per extruder, indexed by axis (E, D; the other places are unused): lists, which the
+    # step interrupt's calls read natively compiled, where dicts are looked up
+    filament: list[Filament | None] = field(default_factory=lambda: [None] * 6)
+    wheel_passed: list[int] = field(default_factory=lambda: [0] * 6)
+    wheel_base: list[bool] = field(default_factory=lambda: [False, False, False, True,
+                                                              False, False])
+    wheel_slipping: list[bool] = field(default_factory=lambda: [False] * 6)
     stuck: dict[str, bool] = field(default_factory=dict)  # input name -> level it sticks at
-    extruded: dict[int, int] = field(default_factory=lambda: {E: 0, D: 0})  # through a nozzle
-    hand: dict[int, float] = field(default_factory=lambda: {E: 0.0, D: 0.0})  # mm still to feed
+    extruded: list[int] = field(default_factory=lambda: [0] * 6)  # through a nozzle
+    hand: list[float] = field(default_factory=lambda: [0.0] * 6)  # mm still to feed
     heaters: dict[str, ThermalModel] = field(default_factory=lambda: {
         "nozzle0": ThermalModel("nozzle0", gain=253.0, tau=71.0, lag=2.0),
         "nozzle1": ThermalModel("nozzle1", gain=253.0, tau=71.0, lag=2.0),
@@ -200,7 +204,7 @@ class Machine:
         """Z microsteps of the gantry line at the carriage's X."""
         if self.za == self.zb:
             return self.za
-        x_mm = self.x / STEPS_PER_MM[X]
+        x_mm = self.x / X_STEPS_PER_MM
         return self.za + (self.zb - self.za) * (x_mm - ZA_X_MM) / (ZB_X_MM - ZA_X_MM)
 
     def filament_present(self, axis: int) -> bool:
@@ -259,7 +263,7 @@ class Machine:
         if axis == Y:
             return abs(self.y) + 1
         if axis == Z:
-            slope = abs(self.zb - self.za) / ((ZB_X_MM - ZA_X_MM) * STEPS_PER_MM[X])
+            slope = abs(self.zb - self.za) / ((ZB_X_MM - ZA_X_MM) * X_STEPS_PER_MM)
             return int(abs(self.nozzle_height()) / (1.0 + slope)) + 1
         if axis == B:
             return abs(self.b) + 1
@@ -296,7 +300,8 @@ class Machine:
             heater.advance(seconds)
         if not self.hand_busy():
             return
-        for axis, left in self.hand.items():
+        for axis in (E, D):
+            left = self.hand[axis]
             f = self.filament[axis]
             if left <= 0 or f is None:
                 continue
