@@ -183,7 +183,7 @@ def _number(text: str, what: str) -> float:
         value = float(text) if text not in ("", "+", "-", ".") else 0.0
     except ValueError:
         raise UsageError(f"{what}: {text!r} is not a number") from None
-    if not math.isfinite(value):
+    if value - value != 0.0:  # infinite or NaN (math.isfinite() is a generic call compiled)
         raise UsageError(f"{what}: {text!r} is not a finite number")
     return value
 
@@ -312,7 +312,9 @@ class Translator:
                 out = list(self._line(line))
             except UsageError as e:
                 raise UsageError(f"line {s.lines_in}: {e}") from None
-            yield from self._count(out)
+            for produced in out:  # (_count() written out: no generator per line)
+                s.lines_out += 1
+                yield produced
         yield from self._count(self._close())
         if self.o.sequences:
             yield from self._count(self._sequence("end"))
@@ -503,7 +505,9 @@ class Translator:
                 delta = value - self.e_position[self.tool]
                 self.e_position[self.tool] = value
         volume = delta if self.volumetric else delta * self._area()
-        head = code + "".join(f" {a}{v}" for a, v in axes.items())
+        head = code
+        for a, v in axes.items():  # (a loop, not join() over a generator: native compiled)
+            head += " " + a + v
         extruder = self._extruder()
         if volume < -1e-9:  # a retraction: the valve closes instead
             self.s.retractions += 1
