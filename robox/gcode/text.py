@@ -68,13 +68,17 @@ def words(line: bytes) -> tuple[str, dict[str, str]]:
     but a blank, then everything up to the next letter or blank."""
     text = line.decode("ascii").upper()
     parts = text.split()
-    for part in parts:
-        if part[1:].isupper():  # a letter after the first: words run together
-            break
-    else:  # one word per blank-separated part, as nearly every slicer writes them
-        if not parts:
-            return "", {}
-        return parts[0], {part[0]: part[1:] for part in parts[1:]}
+    # one word per blank-separated part, as nearly every slicer writes them, unless a
+    # letter follows a part's first character (words run together)
+    if parts and not parts[0][1:].isupper():
+        params: dict[str, str] = {}
+        for part in parts[1:]:
+            value = part[1:]
+            if value.isupper():
+                break
+            params[part[0]] = value
+        else:
+            return parts[0], params
     out = _WORD.findall(text)
     if not out:
         return "", {}

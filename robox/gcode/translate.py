@@ -530,8 +530,11 @@ class Translator:
                 self.s.volume_mm3[extruder] += owed
             volume -= owed
         if volume > 1e-9:
-            yield from self._nozzle_for_width()
-            yield from self._open()
+            # (each generator only when it may yield: nearly every move needs neither)
+            if self.width is not None:
+                yield from self._nozzle_for_width()
+            if self.kind != "plain" and not self.valve_open:
+                yield from self._open()
             self.s.volume_mm3[extruder] += volume
             yield f"{head} {extruder}{_fmt(volume)}{feed}".encode()
             return
