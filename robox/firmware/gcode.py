@@ -369,7 +369,13 @@ class Job:
             self.waiting = None
 
     def _buffer_line(self, buffer: bytearray, n: int) -> Waits:
-        yield from self.process_line(bytes(buffer[:n]))
+        # process_line() written out (a buffered line's response goes nowhere): the
+        # line's own routine runs one generator down, where most passes resume it
+        line = Line(bytes(buffer[:n]))
+        self.lines_executed += 1
+        step = self._code_step(line)
+        if step is not None:
+            yield from step
         if len(buffer) >= n:  # an abort may have emptied it meanwhile
             del buffer[:n]
         self.idle_since = self.fw.clock.now
@@ -388,14 +394,23 @@ class Job:
         text, which always ends in ok."""
         line = Line(raw)
         self.lines_executed += 1
-        response = b""
-        if line.has("G"):
-            yield from self._g(line.int("G"), line)
-        elif line.has("M"):
-            response = yield from self._m(line.int("M"), line)
-        elif line.has("T"):
-            yield from self.fw.position.select_tool(line.int("T"), line)
+        step = self._code_step(line)
+        response = (yield from step) if step is not None else None
         return (response or b"") + b"ok\r\n"
+
+    def _code_step(self, line: Line) -> Waits | None:
+        """The routine that runs the line's code (G before M before T, each found
+        anywhere in the line), returning an M-code's response text; None for none."""
+        if line.has("G"):
+            code = line.int("G")
+            if code == 0 or code == 1:  # nearly every line: the move itself, directly
+                return self.fw.position.move(line, rapid=code == 0)
+            return self._g(code, line)
+        if line.has("M"):
+            return self._m(line.int("M"), line)
+        if line.has("T"):
+            return self.fw.position.select_tool(line.int("T"), line)
+        return None
 
     def _g(self, code: int, line: Line) -> Waits:
         pos = self.fw.position
