@@ -415,9 +415,8 @@ class Job:
     def _g(self, code: int, line: Line) -> Waits:
         pos = self.fw.position
         motion = self.fw.motion
-        if code in (0, 1):
-            yield from pos.move(line, rapid=code == 0)
-        elif code == 4:
+        # (G0 and G1 never come here: _code_step runs the move itself)
+        if code == 4:
             yield from motion.wait_until_empty()
             if line.has("S"):
                 # the float S times the int 1000 is a float product
