@@ -76,9 +76,18 @@ def line_length(buffer: bytes | bytearray) -> int:
     (a NUL ends the string); otherwise its length with its terminator (CR LF or LF CR
     count once) and any blanks after it."""
     n = len(buffer)
-    i = 0
-    while i < n and buffer[i] not in (0, 0x0A, 0x0D):
-        i += 1
+    if n == 0:
+        return 0
+    # the first CR, LF or NUL: three C searches, each no further than the last found
+    i = buffer.find(b"\r")
+    if i < 0:
+        i = n
+    j = buffer.find(b"\n", 0, i)
+    if j >= 0:
+        i = j
+    j = buffer.find(b"\0", 0, i)
+    if j >= 0:
+        i = j
     if i >= n or buffer[i] == 0:
         return 0
     nxt = buffer[i + 1] if i + 1 < n else 0

@@ -1,8 +1,10 @@
 """The job engine over the wire: printing while uploading, resume, pause, abort, errors."""
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from robox.firmware.gcode import IDLE_ABORT_S, IDLE_PAUSE_S
+from robox.firmware.gcode import IDLE_ABORT_S, IDLE_PAUSE_S, line_length
 from robox.formats.protocol import ErrorBit
 from tests.firmware.test_protocol import status_fields
 from tests.firmware.wire import circle_job, hexn, ident, job_text
@@ -200,3 +202,27 @@ def test_a_selfie_pause_from_the_job(wire):
     assert status_fields(wire.raw(b"\xb0"))["pause"] == b"4"
     wire.ok(b"\x980")
     wire.wait_job_done()
+
+
+def c_line_length(buffer: bytes) -> int:
+    """get_gcode_line_length as gcode.c loops it, over a NUL-terminated copy."""
+    line = bytes(buffer) + b"\0\0"
+    i = 0
+    while line[i] and line[i] not in b"\n\r":
+        i += 1
+    if not line[i]:
+        return 0
+    i += (line[i] == 0x0A and line[i + 1] == 0x0D) or (line[i] == 0x0D and line[i + 1] == 0x0A)
+    i += 1
+    while line[i] in b" \t" and line[i]:
+        i += 1
+    return i
+
+
+@settings(max_examples=3000, deadline=None)
+@given(st.binary(max_size=40) | st.lists(st.sampled_from([b"G1 X1", b"\r", b"\n", b"\0", b" ",
+                                                           b"\t", b"M", b"\r\n", b"\n\r"]),
+                                          max_size=12).map(b"".join))
+def test_line_length_is_the_firmwares(buffer):
+    assert line_length(buffer) == c_line_length(buffer)
+    assert line_length(bytearray(buffer)) == c_line_length(buffer)
