@@ -130,6 +130,9 @@ class Motion:
         self.buffer_in = 0
         self.buffer_out = 0
         self.block = [Block() for _ in range(BUFFER_SIZE)]
+        # the lengths of the queued blocks added up, kept as they are queued and counted
+        # down (is_buffer_ready_for_more adds them up each time it asks)
+        self.queued_length: i64 = 0
         self.acc = [0] * 6
         self.active = False
         self.last_index = [0, 0]  # the interrupt's own copy; starts unknown (0)
@@ -370,6 +373,7 @@ class Motion:
         n = self.queued()
         b = self.buffer_in
         self.buffer_in = (self.buffer_in + 1) & MASK
+        self.queued_length += length
         while n > 0:
             prev = (b - 1) & MASK
             end_speed = self._end_speed(self.block[prev], self.block[b])
@@ -474,11 +478,7 @@ class Motion:
             return None
         if n == 0:
             return 0
-        b = self.buffer_out
-        length: i64 = 0
-        for _ in range(n):
-            length += self.block[b].length
-            b = (b + 1) & MASK
+        length: i64 = self.queued_length
         speed = self.block[(self.buffer_in - 1) & MASK].speed
         a: i64 = self.pa["acceleration"]
         v = (((speed // a + MARGIN_UNITS) * speed) & U32) >> 5
@@ -552,6 +552,7 @@ class Motion:
         self.speed_x4k = max(MIN_SPEED << 12, s)
         if self._counts():
             blk.length -= 1
+            self.queued_length -= 1
         if blk.length == 0:
             self.buffer_out = (self.buffer_out + 1) & MASK
             self.active = False
@@ -671,6 +672,7 @@ class Motion:
             if settled or count >= most or tick > end:
                 break
         self._step_movers(blk, count)
+        self.queued_length -= blk.length - length
         blk.length = length
         self.speed_x4k = s
         self.timer_period = period
@@ -746,11 +748,13 @@ class Motion:
         self._step_movers(blk, k)
         if self.fw.job.abort_flag or self.switch_abandon_counter == 0:
             blk.length -= k
+            self.queued_length -= k
         else:
             self.switch_abandon_counter -= k
             if (self.slip_select and self.filament_slip) or \
                     m.switch_pin(self.switch_select) != self.switch_invert:
                 blk.length -= k
+                self.queued_length -= k
         self.last_tick = self.next_tick + (k - 1) * self.timer_period
         self.next_tick += k * self.timer_period
         self.interrupts += k

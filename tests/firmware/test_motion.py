@@ -120,6 +120,32 @@ def test_runs_of_interrupts_and_skipped_passes_change_nothing(monkeypatch):
     assert len(fast) == 85 and fast == slow
 
 
+@pytest.mark.skipif("robox.firmware.main" in compiled_modules(),
+                    reason="a compiled class's methods cannot be replaced; the same source "
+                           "is checked by the pure-Python run")
+def test_the_queued_length_kept_is_the_queued_blocks_lengths_added_up():
+    """The running total ready_for_more() reads is, after every pass of a session with
+    homing (switch-watched moves), tool changes, dwells and a new acceleration, what
+    adding up the queued blocks' lengths gives."""
+    w = fresh_wire()
+    fw, motion = w.fw, w.fw.motion
+    run_pass = fw.run_pass
+    seen = []
+
+    def checked(step=None, passes=1):
+        run_pass(step, passes)
+        n, b, total = motion.queued(), motion.buffer_out, 0
+        for _ in range(n):
+            total += motion.block[b].length
+            b = (b + 1) & motion_module.MASK
+        seen.append((motion.queued_length, total))
+
+    fw.run_pass = checked
+    scripted_session(w)
+    assert len(seen) > 300 and any(total for _, total in seen)
+    assert all(kept == total for kept, total in seen)
+
+
 BACK_OFF = math.floor(f32(0.75 * f32(133.7)) + 0.5)  # 100 steps off a closed switch
 
 
