@@ -2,7 +2,7 @@
 """Anti-checksum insert + verify throughput: the library's word sum beside a plain byte loop.
 
 Usage: python bench/firmware_image.py [--quick]
-On a 128 KiB image (the whole flash: summed through the array module) and a
+On a 128 KiB image (the whole flash: summed through struct) and a
 64 MiB buffer (the word-sum core, since insertion refuses anything larger than
 the flash: past robox.formats.firmware.NUMPY_SUM_BYTES numpy sums it). Prints
 figures.
@@ -56,7 +56,7 @@ def main() -> None:
         mb = size / 1e6
         t_numpy = best(runs_numpy, data, fw.word_sum)
         t_loop = best(runs_loop, data, byte_loop_sum)
-        how = "numpy" if size > fw.NUMPY_SUM_BYTES else "array"
+        how = "numpy" if size > fw.NUMPY_SUM_BYTES else "struct"
         print(f"  {name:<14} {how} {mb / t_numpy:9.1f} MB/s   byte loop {mb / t_loop:6.2f} MB/s"
               f"   ({t_loop / t_numpy:,.0f}x)")
     library = fw.insert_anti_checksum

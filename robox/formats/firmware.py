@@ -10,10 +10,8 @@ nothing, so that tools and the firmware model decide what to do.
 
 from __future__ import annotations
 
-import array
 import binascii
 import struct
-import sys
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -54,11 +52,7 @@ def word_sum(data: bytes | bytearray | memoryview) -> int:
 
         total = int(np.frombuffer(raw[:whole], dtype="<u4").sum(dtype=np.uint64))
     else:
-        words = array.array("I" if array.array("I").itemsize == 4 else "L")
-        words.frombytes(raw[:whole])
-        if sys.byteorder == "big":
-            words.byteswap()
-        total = sum(words)
+        total = sum(struct.unpack_from(f"<{whole // 4}I", raw))
     for i in range(whole, len(raw)):
         total += raw[i] << (8 * (i % 4))
     return total & _U32
