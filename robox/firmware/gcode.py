@@ -64,6 +64,11 @@ class Wait:
 Waits = Generator[Wait, None, Any]
 
 NEXT_PASS: Final = Wait()
+#: What a line yields, and yields again, while it waits for room in the motion queue
+#: (`while not motion.ready_for_more(): yield READY_WAIT`) or for motion to end
+#: (`wait_for(motion.empty, EMPTY_WAIT)`); nothing else yields them.
+READY_WAIT: Final = Wait(motion="ready")
+EMPTY_WAIT: Final = Wait(motion="empty")
 
 
 def wait_for(condition, wait: Wait = NEXT_PASS) -> Waits:
@@ -219,6 +224,15 @@ class Job:
     # ------------------------------------------------------------- loop
     def maintain_job(self) -> None:
         if self.current is not None:
+            # A line waiting for room in the motion queue, or for motion to end, would
+            # look, find it still not so and yield the same wait: left suspended instead
+            # (compiled, resuming it goes through a generator for every routine it is in).
+            wait = self.waiting
+            if wait is READY_WAIT:
+                if not self.fw.motion.ready_for_more():
+                    return
+            elif wait is EMPTY_WAIT and not self.fw.motion.empty():
+                return
             self._drive()
             return
         slipped = self._the_boss()

@@ -44,7 +44,7 @@ from robox.firmware.carith import (
 )
 from robox.firmware.carith import f32 as float32
 from robox.firmware.carith import sqrt as csqrt
-from robox.firmware.gcode import Wait, Waits, wait_for
+from robox.firmware.gcode import EMPTY_WAIT, READY_WAIT, Waits, wait_for
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, Machine, X, Y, Z
 
@@ -72,8 +72,6 @@ NORMAL: Final = 0
 LOADING: Final = 1
 UNLOADING: Final = 2
 UNTIL_SLIP: Final = 3
-READY_WAIT: Final = Wait(motion="ready")
-EMPTY_WAIT: Final = Wait(motion="empty")
 
 
 class Block:

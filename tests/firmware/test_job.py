@@ -6,6 +6,7 @@ from hypothesis import strategies as st
 
 from robox.firmware.gcode import IDLE_ABORT_S, IDLE_PAUSE_S, line_length
 from robox.formats.protocol import ErrorBit
+from robox.native import compiled_modules
 from tests.firmware.test_protocol import status_fields
 from tests.firmware.wire import circle_job, hexn, ident, job_text
 
@@ -40,6 +41,35 @@ def test_a_job_that_catches_up_with_its_upload_pauses_and_stays_paused(wire):
     assert status["job"] == bytes(16) and status["line"] == b"00000000"  # reset at the end
     assert status["nozzle0"][0] == b"0" and status["bed"][0] == b"0"  # heaters off
     assert status["nozzle0"][2] == b"210.0000"  # targets reloaded from the reel
+
+
+@pytest.mark.skipif("robox.firmware.gcode" in compiled_modules(),
+                    reason="a compiled class's methods cannot be replaced; the same source "
+                           "is checked by the pure-Python run")
+def test_a_line_waiting_on_motion_is_resumed_only_once_it_can_go_on(wire):
+    """A job line waiting for room in the motion queue, or for motion to end, is left
+    suspended until it has what it waits for (resumed earlier, it would look and yield
+    the same wait again), and the job prints to its end."""
+    job, motion = wire.fw.job, wire.fw.motion
+    drive = job._drive
+    seen = []
+
+    def watched():
+        wait = job.waiting
+        seen.append((wait.motion if wait is not None else None, motion.ready_for_more(),
+                     motion.empty()))
+        drive()
+
+    job._drive = watched
+    lines = job_text(["G4 P10", "M400", "G1 X10 Y10 F6000", "M400", "G4 P10"])
+    wire.upload("waits", circle_job(150, heat=False) + lines)
+    wire.ok(b"\x94" + ident("waits"))
+    wire.wait_job_done()
+    assert ("job finished", ident("waits")) in wire.fw.events
+    ready = [s for s in seen if s[0] == "ready"]
+    empty = [s for s in seen if s[0] == "empty"]
+    assert len(ready) > 100 and len(empty) >= 2
+    assert all(s[1] for s in ready) and all(s[2] for s in empty)
 
 
 def test_run_job_restarts_a_running_job_and_an_unknown_id_ends_it(wire):
