@@ -34,7 +34,7 @@ _HEX: Final = re.compile(rb"([+-]?)0[xX]((?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-
 _SPECIAL: Final = re.compile(rb"([+-]?)(inf(?:inity)?|nan(?:\([0-9A-Za-z_]*\))?)", re.IGNORECASE)
 _INT: Final = re.compile(rb"[+-]?\d+")
 _FLOAT32_MAX: Final = 3.4028234663852886e38
-_END: Final = re.compile(rb"[\r\n;(\0]")
+_POWERS_OF_TEN: Final = [10.0**i for i in range(16)]  # each exact as a double
 
 
 float32 = f32  # `value` rounded to C float precision (overflow gives infinity, as C does)
@@ -42,7 +42,7 @@ float32 = f32  # `value` rounded to C float precision (overflow gives infinity, 
 
 def report_float(value: float) -> bytes:
     """A float as the status report carries it: float8, NUL padded."""
-    return float8.encode(float32(value), b"\0")
+    return float8.encode(f32(value), b"\0")
 
 
 def _skip_space(text: bytes, i: int = 0) -> int:
@@ -79,6 +79,59 @@ def _plain_number_end(text: bytes, i: int, point: bool) -> int:
     if digits == 0 or (point and k < n and text[k] in b"eExX"):
         return -1
     return k
+
+
+def _short_decimal(text: bytes, i: int) -> float:
+    """strtod's value of a short plain decimal right at `i` (an optional sign, then at
+    most 15 digits with at most one point among them, and no exponent or hexadecimal
+    prefix after), NaN for anything else. Nearly every number a slicer writes is one.
+    The digits make a whole number below 2**53 and the point a power of ten up to
+    1e15, both exact as doubles, so their quotient is the correctly rounded value
+    strtod gives (the classic exact case of decimal conversion)."""
+    n = len(text)
+    negative = False
+    k = i
+    if k < n and (text[k] == 45 or text[k] == 43):  # - or +
+        negative = text[k] == 45
+        k += 1
+    whole = 0
+    digits = 0
+    places = -1  # digits after the point (-1: no point yet)
+    while k < n:
+        c = text[k]
+        if 48 <= c <= 57:
+            whole = whole * 10 + (c - 48)
+            digits += 1
+            if places >= 0:
+                places += 1
+        elif c == 46 and places < 0:  # .
+            places = 0
+        else:
+            break
+        k += 1
+    if digits == 0 or digits > 15 or (k < n and text[k] in b"eExX"):
+        return math.nan
+    value = float(whole) / _POWERS_OF_TEN[places] if places > 0 else float(whole)
+    return -value if negative else value
+
+
+def _short_integer(text: bytes, i: int) -> int:
+    """strtol's value of an optional sign and at most 18 decimal digits right at `i`
+    (whatever follows them), -1 for anything else (a negative number included)."""
+    n = len(text)
+    k = i
+    if k < n and text[k] == 43:  # +
+        k += 1
+    value = 0
+    digits = 0
+    while k < n and digits < 19:
+        c = text[k]
+        if not 48 <= c <= 57:
+            break
+        value = value * 10 + (c - 48)
+        digits += 1
+        k += 1
+    return value if 0 < digits <= 18 else -1
 
 
 def _strtod_at(text: bytes, start: int) -> tuple[float, int]:
@@ -131,7 +184,16 @@ def strtoul(text: bytes, start: int = 0) -> int:
 
 def strtof(text: bytes) -> float:
     """C's strtof, as the firmware reads an 8-character float field."""
-    return float32(strtod(bytes(text).split(b"\0", 1)[0])[0])
+    return f32(strtod(bytes(text).split(b"\0", 1)[0])[0])
+
+
+def _find(text: bytes, c: int) -> int:
+    """strchr: where byte `c` first is in `text`, -1 if nowhere (compiled, a native loop
+    over a line's few dozen bytes costs less than calling bytes.find)."""
+    for k in range(len(text)):
+        if text[k] == c:
+            return k
+    return -1
 
 
 class Line:
@@ -140,8 +202,15 @@ class Line:
     __slots__ = ("text",)
 
     def __init__(self, raw: bytes):
-        end = _END.search(raw)
-        self.text = bytes(raw[: end.start()]) if end else bytes(raw)
+        # the first CR, LF, ';', '(' or NUL, byte by byte (compiled, a native loop: a
+        # regular expression's character class costs several times as much here)
+        n = len(raw)
+        for k in range(n):
+            c = raw[k]
+            if c < 60 and (c == 13 or c == 10 or c == 59 or c == 40 or c == 0):
+                self.text = bytes(raw[:k])
+                return
+        self.text = bytes(raw)
 
     # A parameter is found by its letter's first occurrence (strchr) and read from the
     # byte after it, in place.
@@ -149,19 +218,29 @@ class Line:
         return ord(letter) in self.text  # (`in` takes no argument parsing, find() does)
 
     def has_float(self, letter: str) -> bool:
-        at = self.text.find(ord(letter))
+        at = _find(self.text, ord(letter))
         return at >= 0 and _strtod_at(self.text, at + 1)[1] > 0
 
     def float(self, letter: str) -> float:
-        at = self.text.find(ord(letter))
-        return 0.0 if at < 0 else float32(_strtod_at(self.text, at + 1)[0])
+        text = self.text
+        at = _find(text, ord(letter))
+        if at < 0:
+            return 0.0
+        value = _short_decimal(text, at + 1)
+        if value != value:  # (NaN: not a short plain decimal)
+            value = _strtod_at(text, at + 1)[0]
+        return f32(value)
 
     def int(self, letter: str) -> int:
-        at = self.text.find(ord(letter))
-        return 0 if at < 0 else strtol(self.text, at + 1)
+        text = self.text
+        at = _find(text, ord(letter))
+        if at < 0:
+            return 0
+        value = _short_integer(text, at + 1)
+        return value if value >= 0 else strtol(text, at + 1)
 
     def uint(self, letter: str) -> builtins.int:  # `int` here is the method above
-        at = self.text.find(ord(letter))
+        at = _find(self.text, ord(letter))
         return 0 if at < 0 else strtoul(self.text, at + 1)
 
     def bool(self, letter: str) -> bool:

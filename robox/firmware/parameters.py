@@ -11,8 +11,9 @@ from __future__ import annotations
 import struct
 from typing import TYPE_CHECKING, Any, Final
 
+from robox.firmware.carith import f32 as float32
 from robox.firmware.carith import to_uchar
-from robox.firmware.cline import Line, float32
+from robox.firmware.cline import Line
 from robox.formats import float8
 from robox.formats.firmware import (
     DEFAULT_OFFSET,

@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robox.firmware.carith import struct_f32
-from robox.firmware.cline import Line, strtod, strtol, strtoul
+from robox.firmware.cline import Line, _short_decimal, strtod, strtol, strtoul
 
 _LIBC_NAME = ctypes.util.find_library("c")
 pytestmark = pytest.mark.skipif(
@@ -80,6 +80,28 @@ def test_a_parameter_is_the_c_float_of_strtod_after_its_letter(text):
     line = Line(b"G1 X" + text)
     expected = struct_f32(_c_call(_libc.strtod, line.text[4:])[0])  # the line ends at ; ( CR LF
     assert _same_double(line.float("X"), expected), text
+
+
+@settings(max_examples=2000, deadline=None)
+@given(_TEXTS)
+def test_an_integer_parameter_is_strtol_after_its_letter(text):
+    line = Line(b"M" + text)
+    assert line.int("M") == _c_call(_libc.strtol, line.text[1:], 10)[0], text
+
+
+@settings(max_examples=3000, deadline=None)
+@given(st.text("0123456789", min_size=1, max_size=17), st.integers(0, 17),
+       st.sampled_from([b"", b"-", b"+"]))
+def test_short_decimals_read_as_strtod_reads_them(digits, point, sign):
+    """Up to 15 digits a parameter is read without strtod's general path: every place of
+    the point, leading and trailing zeros, and past 15 digits the general path again."""
+    text = sign + digits[:point].encode() + b"." + digits[point:].encode()
+    line = Line(b"G1 E" + text + b" F1")
+    c_value = _c_call(_libc.strtod, text)[0]
+    assert _same_double(line.float("E"), struct_f32(c_value)), text
+    # the double itself, before the cast to float hides most of a wrong rounding
+    value = _short_decimal(b"E" + text, 1)
+    assert _same_double(value, c_value) if len(digits) <= 15 else math.isnan(value), text
 
 
 @pytest.mark.parametrize("text, value, used", [
