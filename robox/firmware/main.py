@@ -244,7 +244,14 @@ class Firmware:
             if when is None:
                 return PASS_S, most
             tick, t, n = motion.tick_of(when), now, 0
-            while True:  # the first pass that sees it, the clock added up as it will be
+            # the first pass that sees it, the clock added up as it will be; the passes
+            # well short of it are only added up (a pass is 3000 ticks: two short of
+            # the quotient is short of it, whatever the sums' rounding)
+            short = min(most, int((when - now) / PASS_S)) - 2
+            while n < short:
+                t += PASS_S
+                n += 1
+            while True:
                 t += PASS_S
                 n += 1
                 if motion.tick_of(t) >= tick or n >= most:

@@ -174,7 +174,12 @@ class Position:
             pos[i] = f32(pos[i] + moves[i])
         if self.on_move is not None:
             self.on_move(moves)
-        return moves.count(0.0) < len(moves)  # any(moves), as one C call either way
+        moved = False
+        for i in range(6):  # any(moves), in a native loop (compiled, any() is generic)
+            if moves[i]:
+                moved = True
+                break
+        return moved
 
     def _quiet_segments(self, step: list[float], left: int) -> int:
         """After a segment that queued nothing: how many of the next `left` segments

@@ -230,7 +230,7 @@ class Machine:
 
     def switch_pin(self, axis: int) -> int:
         """The input level: X/Y/Z/B switches read 1 when actuated, filament sensors 0."""
-        return int(self.actuated(axis)) ^ (axis in (E, D))
+        return int(self.actuated(axis)) ^ int(E <= axis <= D)  # (E, D: compiled, no tuple)
 
     def z_top_pin(self) -> int:
         """The Z-top input reads 0 when actuated."""
