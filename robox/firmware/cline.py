@@ -116,8 +116,9 @@ def _short_decimal(text: bytes, i: int) -> float:
 
 
 def _short_integer(text: bytes, i: int) -> int:
-    """strtol's value of an optional sign and at most 18 decimal digits right at `i`
-    (whatever follows them), -1 for anything else (a negative number included)."""
+    """strtol's value of an optional plus sign and at most 18 decimal digits right at
+    `i` (whatever follows them), -1 for anything else: a minus sign, blanks before the
+    digits, or more digits (strtol's general path reads those)."""
     n = len(text)
     k = i
     if k < n and text[k] == 43:  # +
