@@ -174,7 +174,7 @@ class Motion:
     def ready_for_more(self) -> bool:
         """is_buffer_ready_for_more: not full, and the steps queued are fewer than the
         newest block's speed needs to stop plus a 0.1 s margin."""
-        return self._counts_until_ready() == 0
+        return self._counts_until_ready(self.pa["acceleration"]) == 0
 
     def aborting(self) -> bool:
         return self.fw.job.abort_flag
@@ -372,9 +372,10 @@ class Motion:
         b = self.buffer_in
         self.buffer_in = (self.buffer_in + 1) & MASK
         self.queued_length += length
+        a: i64 = self.pa["acceleration"]  # (read once: nothing here changes it)
         while n > 0:
             prev = (b - 1) & MASK
-            end_speed = self._end_speed(self.block[prev], self.block[b])
+            end_speed = self._end_speed(self.block[prev], self.block[b], a)
             if end_speed == self.block[prev].end_speed:
                 break  # so every block before it would come out as it is
             self.block[prev].end_speed = end_speed
@@ -417,8 +418,8 @@ class Motion:
         if axis == B:
             self.fw.heaters.set_head_power(True)
 
-    def _end_speed(self, this: Block, nxt: Block) -> int:
-        a: i64 = self.pa["acceleration"]
+    def _end_speed(self, this: Block, nxt: Block, a: i64) -> int:
+        """The junction speed from `this` block into `nxt` (the acceleration `a`)."""
         v = (min(0x00800000, nxt.length) << 1) * a
         v += (nxt.end_speed * nxt.end_speed) >> 4
         end_speed = min(nxt.speed, isqrt32(v & U32) << 2)
@@ -441,8 +442,11 @@ class Motion:
     def catch_up(self) -> None:
         """Run every step interrupt due by now."""
         limit = self.tick_of(self.fw.clock.now)
+        # the acceleration read once for the interrupts taken here together (no G-code
+        # runs between them to change it)
+        a: i64 = self.pa["acceleration"]
         while self.next_tick <= limit:
-            self._advance(limit, None)
+            self._advance(limit, None, a)
 
     def can_run_ahead(self) -> bool:
         """Whether the loop may skip passes while motion runs: nothing the foreground
@@ -458,19 +462,20 @@ class Motion:
         if it already is), or None if it did not happen by `until`."""
         limit = self.tick_of(until)
         last = self.fw.clock.now
+        a: i64 = self.pa["acceleration"]  # (as catch_up() reads it)
         while True:
-            cap = self._counts_until_ready() if kind == "ready" else \
+            cap = self._counts_until_ready(a) if kind == "ready" else \
                 (0 if self.empty() else None)
             if cap == 0:
                 return last
             if self.next_tick > limit or not self.machine.z_top_pin():
                 return None
-            self._advance(limit, cap)
+            self._advance(limit, cap, a)
             last = self.last_tick / TICKS_PER_S
 
-    def _counts_until_ready(self) -> int | None:
+    def _counts_until_ready(self, a: i64) -> int | None:
         """How many more counted interrupts until ready_for_more() holds (0: it does);
-        None when it needs a block to end first."""
+        None when it needs a block to end first (`a`: the acceleration)."""
         n = self.queued()
         if n >= BUFFER_SIZE - 1:
             return None
@@ -478,13 +483,12 @@ class Motion:
             return 0
         length: i64 = self.queued_length
         speed = self.block[(self.buffer_in - 1) & MASK].speed
-        a: i64 = self.pa["acceleration"]
         v = (((speed // a + MARGIN_UNITS) * speed) & U32) >> 5
         return 0 if length < v else length - v + 1
 
-    def _advance(self, limit: int, cap: int | None) -> None:
+    def _advance(self, limit: int, cap: int | None, a: i64) -> None:
         """One interrupt, or a run of them, not past `limit` nor past `cap` counted
-        interrupts (None: no cap)."""
+        interrupts (None: no cap), with the acceleration `a`."""
         if not self.active:
             if self.buffer_in != self.buffer_out:
                 if self.block[self.buffer_out].length:
@@ -505,7 +509,7 @@ class Motion:
                 return
         blk = self.block[self.buffer_out]
         m = self.machine
-        k = self._run_length(blk, limit, m, cap)
+        k = self._run_length(blk, limit, m, cap, a)
         if k > 1:
             self._batch(blk, k, m)
         elif self.switch_abandon_counter == 0 and m.quiet_steps(None) >= (1 << 59):
@@ -693,12 +697,12 @@ class Motion:
             acc[i] = (before + moved) & U32
             m.step(i, ((before & 0xFFFF) + moved) >> 16)
 
-    def _run_length(self, blk: Block, limit: int, m: Machine, cap: int | None) -> int:
+    def _run_length(self, blk: Block, limit: int, m: Machine, cap: int | None,
+                    a: i64) -> int:
         """How many interrupts from now can be done at once (1: one at a time): the speed
         must stay exactly where it is for every one of them, no input the interrupt
         reads may change, the block may not end and `cap` counted ones are the most."""
         s = self.speed_x4k
-        a: i64 = self.pa["acceleration"]
         c = (blk.end_speed * blk.end_speed) >> 4
         k: int
         counting = (self.fw.job.abort_flag or self.switch_abandon_counter == 0

@@ -11,15 +11,17 @@ import re
 import struct
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Final
 
 import crcmod
 
 from robox.errors import NotFoundError, UsageError
 from robox.formats import float8
 
-CHIP_SIZE = 512
-DATA_SIZE = 192
-BANK_SIZE = DATA_SIZE + 4
+# (Final: the compiled firmware model takes them as constants, not module lookups)
+CHIP_SIZE: Final = 512
+DATA_SIZE: Final = 192
+BANK_SIZE: Final = 196  # the data and its CRC-32
 BANK_ADDRESSES = (0x000, 0x100)
 CRC_INIT = 0x535E01FE
 
