@@ -169,6 +169,9 @@ def serve_forever(state_dir, speed: float | None, announce, console=None) -> Non
     previous = {sig: signal.signal(sig, server.stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     faulted = False
     try:
+        # power-up: the EEPROMs load before a host is told where to connect, as for a
+        # printer in this process (sim-once); a host asking at once sees them read
+        printer.settle()
         printer.lock.update(pty=server.path, started=round(time.time(), 3), speed=speed)
         served.add_note(printer.state_dir)
         announce(server.path)
