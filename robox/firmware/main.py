@@ -121,7 +121,8 @@ class Firmware:
         self.whole_passes += 1
         self.motion.maintain()
         self.eeproms.maintain()
-        self.file_system.maintain()
+        if not self.hw.card.present:  # all the file system's maintain() looks at
+            self.file_system.maintain()  # (an interpreted call: spared while it is there)
         self.command.maintain()
         self.user_interface.maintain()
         self.heaters.maintain()
