@@ -23,6 +23,7 @@ from typing import Final
 
 from robox.firmware.carith import f32
 from robox.formats import float8
+from robox.formats.float8 import short_decimal
 
 LONG_MAX: Final = (1 << 63) - 1
 LONG_MIN: Final = -(1 << 63)
@@ -34,7 +35,6 @@ _HEX: Final = re.compile(rb"([+-]?)0[xX]((?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-
 _SPECIAL: Final = re.compile(rb"([+-]?)(inf(?:inity)?|nan(?:\([0-9A-Za-z_]*\))?)", re.IGNORECASE)
 _INT: Final = re.compile(rb"[+-]?\d+")
 _FLOAT32_MAX: Final = 3.4028234663852886e38
-_POWERS_OF_TEN: Final = [10.0**i for i in range(16)]  # each exact as a double
 
 
 float32 = f32  # `value` rounded to C float precision (overflow gives infinity, as C does)
@@ -79,40 +79,6 @@ def _plain_number_end(text: bytes, i: int, point: bool) -> int:
     if digits == 0 or (point and k < n and text[k] in b"eExX"):
         return -1
     return k
-
-
-def _short_decimal(text: bytes, i: int) -> float:
-    """strtod's value of a short plain decimal right at `i` (an optional sign, then at
-    most 15 digits with at most one point among them, and no exponent or hexadecimal
-    prefix after), NaN for anything else. Nearly every number a slicer writes is one.
-    The digits make a whole number below 2**53 and the point a power of ten up to
-    1e15, both exact as doubles, so their quotient is the correctly rounded value
-    strtod gives (the classic exact case of decimal conversion)."""
-    n = len(text)
-    negative = False
-    k = i
-    if k < n and (text[k] == 45 or text[k] == 43):  # - or +
-        negative = text[k] == 45
-        k += 1
-    whole = 0
-    digits = 0
-    places = -1  # digits after the point (-1: no point yet)
-    while k < n:
-        c = text[k]
-        if 48 <= c <= 57:
-            whole = whole * 10 + (c - 48)
-            digits += 1
-            if places >= 0:
-                places += 1
-        elif c == 46 and places < 0:  # .
-            places = 0
-        else:
-            break
-        k += 1
-    if digits == 0 or digits > 15 or (k < n and text[k] in b"eExX"):
-        return math.nan
-    value = float(whole) / _POWERS_OF_TEN[places] if places > 0 else float(whole)
-    return -value if negative else value
 
 
 def _short_integer(text: bytes, i: int) -> int:
@@ -227,7 +193,7 @@ class Line:
         at = _find(text, ord(letter))
         if at < 0:
             return 0.0
-        value = _short_decimal(text, at + 1)
+        value = short_decimal(text, at + 1)
         if value != value:  # (NaN: not a short plain decimal)
             value = _strtod_at(text, at + 1)[0]
         return f32(value)

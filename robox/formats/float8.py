@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import re
 import struct
+from typing import Final
 
 from robox.errors import UsageError
 
@@ -17,6 +18,8 @@ WIDTH = 8
 _NUMBER = re.compile(
     rb"\s*([+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan))", re.IGNORECASE)
 _FLOAT32_MAX = 3.4028234663852886e38
+_POWERS_OF_TEN: Final = [10.0**i for i in range(16)]  # each exact as a double
+_BLANKS: Final = b" \t\n\r\x0b\x0c"  # what strtod skips (and the pattern's \s)
 
 
 def to_float32(value: float) -> float:
@@ -50,7 +53,49 @@ def encode_checked(value: float, pad: bytes = b" ") -> bytes:
 
 def parse(raw: bytes | bytearray) -> float:
     """Read like strtof: the leading number, 0.0 when there is none."""
-    match = _NUMBER.match(bytes(raw))
+    text = bytes(raw)
+    i = 0
+    while i < len(text) and text[i] in _BLANKS:
+        i += 1
+    value = short_decimal(text, i)  # (nearly every field: no pattern matched)
+    if value == value:
+        return to_float32(value)
+    match = _NUMBER.match(text)
     if not match:
         return 0.0
     return to_float32(float(match.group(1)))
+
+
+def short_decimal(text: bytes, i: int) -> float:
+    """strtod's value of a short plain decimal right at `i` (an optional sign, then at
+    most 15 digits with at most one point among them, and no exponent or hexadecimal
+    prefix after), NaN for anything else. Nearly every number a slicer writes, and
+    every float8 a printer writes, is one.
+    The digits make a whole number below 2**53 and the point a power of ten up to
+    1e15, both exact as doubles, so their quotient is the correctly rounded value
+    strtod gives (the classic exact case of decimal conversion)."""
+    n = len(text)
+    negative = False
+    k = i
+    if k < n and (text[k] == 45 or text[k] == 43):  # - or +
+        negative = text[k] == 45
+        k += 1
+    whole = 0
+    digits = 0
+    places = -1  # digits after the point (-1: no point yet)
+    while k < n:
+        c = text[k]
+        if 48 <= c <= 57:
+            whole = whole * 10 + (c - 48)
+            digits += 1
+            if places >= 0:
+                places += 1
+        elif c == 46 and places < 0:  # .
+            places = 0
+        else:
+            break
+        k += 1
+    if digits == 0 or digits > 15 or (k < n and text[k] in b"eExX"):
+        return math.nan
+    value = float(whole) / _POWERS_OF_TEN[places] if places > 0 else float(whole)
+    return -value if negative else value

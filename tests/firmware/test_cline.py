@@ -16,7 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robox.firmware.carith import struct_f32
-from robox.firmware.cline import Line, _short_decimal, strtod, strtol, strtoul
+from robox.firmware.cline import Line, strtod, strtol, strtoul
+from robox.formats.float8 import short_decimal
 
 _LIBC_NAME = ctypes.util.find_library("c")
 pytestmark = pytest.mark.skipif(
@@ -100,7 +101,7 @@ def test_short_decimals_read_as_strtod_reads_them(digits, point, sign):
     c_value = _c_call(_libc.strtod, text)[0]
     assert _same_double(line.float("E"), struct_f32(c_value)), text
     # the double itself, before the cast to float hides most of a wrong rounding
-    value = _short_decimal(b"E" + text, 1)
+    value = short_decimal(b"E" + text, 1)
     assert _same_double(value, c_value) if len(digits) <= 15 else math.isnan(value), text
 
 

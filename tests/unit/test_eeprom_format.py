@@ -1,10 +1,12 @@
 """EEPROM bytes against values computed independently in the test."""
 
+import ctypes
+import ctypes.util
 import math
 import struct
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robox.errors import NotFoundError, UsageError
@@ -74,6 +76,29 @@ def test_float8_pads_short_text():
 ])
 def test_float8_parses_like_strtof(raw, value):
     assert float8.parse(raw) == value
+
+
+_LIBC = ctypes.util.find_library("c")
+
+
+@pytest.mark.skipif(_LIBC is None, reason="needs the C library's strtod")
+@settings(max_examples=3000, deadline=None)
+@given(st.builds(lambda blank, sign, whole, point, frac, tail: blank + sign + whole + point
+                 + frac + tail,
+                 st.sampled_from([b"", b" ", b"\t ", b"\n"]), st.sampled_from([b"", b"-", b"+"]),
+                 st.text("0123456789", max_size=10).map(str.encode),
+                 st.sampled_from([b"", b"."]),
+                 st.text("0123456789", max_size=10).map(str.encode),
+                 st.sampled_from([b"", b"\0\0", b"  ", b"e3", b"E-2", b"x", b"-", b"."])))
+def test_float8_reads_the_double_strtod_reads_then_rounds_it_to_a_float(raw):
+    """Fields of up to 20 digits, a point anywhere, signs, blanks and what may follow
+    (an exponent, NULs, junk): the C library's strtod, rounded to a float."""
+    libc = ctypes.CDLL(_LIBC)
+    libc.strtod.restype = ctypes.c_double
+    libc.strtod.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_char_p)]
+    expected = struct.unpack("<f", struct.pack("<f", libc.strtod(raw, None)))[0]
+    got = float8.parse(raw)
+    assert got == expected and math.copysign(1, got) == math.copysign(1, expected), raw
 
 
 def test_float8_parses_to_float_precision():
