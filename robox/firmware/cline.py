@@ -23,12 +23,11 @@ from typing import Final
 
 from robox.firmware.carith import f32
 from robox.formats import float8
-from robox.formats.float8 import short_decimal
+from robox.formats.float8 import short_decimal, skip_blanks
 
 LONG_MAX: Final = (1 << 63) - 1
 LONG_MIN: Final = -(1 << 63)
 ULONG_MAX: Final = (1 << 64) - 1
-_SPACE: Final = b" \t\n\v\f\r"
 _DEC: Final = re.compile(rb"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _HEX: Final = re.compile(rb"([+-]?)0[xX]((?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-fA-F]+))"
                          rb"(?:[pP]([+-]?\d+))?")
@@ -43,13 +42,6 @@ float32 = f32  # `value` rounded to C float precision (overflow gives infinity, 
 def report_float(value: float) -> bytes:
     """A float as the status report carries it: float8, NUL padded."""
     return float8.encode(f32(value), b"\0")
-
-
-def _skip_space(text: bytes, i: int = 0) -> int:
-    n = len(text)
-    while i < n and text[i] in _SPACE:
-        i += 1
-    return i
 
 
 def strtod(text: bytes) -> tuple[float, int]:
@@ -81,29 +73,9 @@ def _plain_number_end(text: bytes, i: int, point: bool) -> int:
     return k
 
 
-def _short_integer(text: bytes, i: int) -> int:
-    """strtol's value of an optional plus sign and at most 18 decimal digits right at
-    `i` (whatever follows them), -1 for anything else: a minus sign, blanks before the
-    digits, or more digits (strtol's general path reads those)."""
-    n = len(text)
-    k = i
-    if k < n and text[k] == 43:  # +
-        k += 1
-    value = 0
-    digits = 0
-    while k < n and digits < 19:
-        c = text[k]
-        if not 48 <= c <= 57:
-            break
-        value = value * 10 + (c - 48)
-        digits += 1
-        k += 1
-    return value if 0 < digits <= 18 else -1
-
-
 def _strtod_at(text: bytes, start: int) -> tuple[float, int]:
     """strtod over `text` from `start` on (no copy of the rest is made)."""
-    i = _skip_space(text, start)
+    i = skip_blanks(text, start)
     k = _plain_number_end(text, i, True)
     if k >= 0:
         return float(text[i:k]), k - start
@@ -130,7 +102,7 @@ def _strtod_at(text: bytes, start: int) -> tuple[float, int]:
 
 
 def _leading_integer(text: bytes, start: int = 0) -> int:
-    i = _skip_space(text, start)
+    i = skip_blanks(text, start)
     k = _plain_number_end(text, i, False)
     if k >= 0:
         return int(text[i:k])
@@ -199,12 +171,8 @@ class Line:
         return f32(value)
 
     def int(self, letter: str) -> int:
-        text = self.text
-        at = _find(text, ord(letter))
-        if at < 0:
-            return 0
-        value = _short_integer(text, at + 1)
-        return value if value >= 0 else strtol(text, at + 1)
+        at = _find(self.text, ord(letter))
+        return 0 if at < 0 else strtol(self.text, at + 1)
 
     def uint(self, letter: str) -> builtins.int:  # `int` here is the method above
         at = _find(self.text, ord(letter))

@@ -392,11 +392,9 @@ class Job:
             self.waiting = None
 
     def _buffer_line(self, buffer: bytearray, n: int) -> Waits:
-        # process_line() written out (a buffered line's response goes nowhere): the
-        # line's own routine runs one generator down, where most passes resume it
-        line = Line(bytes(buffer[:n]))
-        self.lines_executed += 1
-        step = self._code_step(line)
+        # (a buffered line's response goes nowhere: its routine runs one generator down
+        # from here, not inside process_line's, where most passes resume it)
+        step = self._code_step(bytes(buffer[:n]))
         if step is not None:
             yield from step
         if len(buffer) >= n:  # an abort may have emptied it meanwhile
@@ -415,15 +413,16 @@ class Job:
     def process_line(self, raw: bytes) -> Waits:
         """Run one line (a generator: it yields while it waits); returns its response
         text, which always ends in ok."""
-        line = Line(raw)
-        self.lines_executed += 1
-        step = self._code_step(line)
+        step = self._code_step(raw)
         response = (yield from step) if step is not None else None
         return (response or b"") + b"ok\r\n"
 
-    def _code_step(self, line: Line) -> Waits | None:
-        """The routine that runs the line's code (G before M before T, each found
-        anywhere in the line), returning an M-code's response text; None for none."""
+    def _code_step(self, raw: bytes) -> Waits | None:
+        """The line, counted as executed, and the routine that runs its code (G before M
+        before T, each found anywhere in the line), returning an M-code's response
+        text; None for none."""
+        line = Line(raw)
+        self.lines_executed += 1
         if line.has("G"):
             code = line.int("G")
             if code == 0 or code == 1:  # nearly every line: the move itself, directly

@@ -19,7 +19,7 @@ _NUMBER = re.compile(
     rb"\s*([+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan))", re.IGNORECASE)
 _FLOAT32_MAX = 3.4028234663852886e38
 _POWERS_OF_TEN: Final = [10.0**i for i in range(16)]  # each exact as a double
-_BLANKS: Final = b" \t\n\r\x0b\x0c"  # what strtod skips (and the pattern's \s)
+BLANKS: Final = b" \t\n\v\f\r"  # the white space strtod and strtol skip (the pattern's \s)
 
 
 def to_float32(value: float) -> float:
@@ -54,16 +54,21 @@ def encode_checked(value: float, pad: bytes = b" ") -> bytes:
 def parse(raw: bytes | bytearray) -> float:
     """Read like strtof: the leading number, 0.0 when there is none."""
     text = bytes(raw)
-    i = 0
-    while i < len(text) and text[i] in _BLANKS:
-        i += 1
-    value = short_decimal(text, i)  # (nearly every field: no pattern matched)
+    value = short_decimal(text, skip_blanks(text, 0))  # (nearly every field: no pattern matched)
     if value == value:
         return to_float32(value)
     match = _NUMBER.match(text)
     if not match:
         return 0.0
     return to_float32(float(match.group(1)))
+
+
+def skip_blanks(text: bytes, i: int) -> int:
+    """Where the first byte at or after `i` that is not white space is (len: none)."""
+    n = len(text)
+    while i < n and text[i] in BLANKS:
+        i += 1
+    return i
 
 
 def short_decimal(text: bytes, i: int) -> float:
