@@ -63,6 +63,7 @@ def struct_f32(value: float) -> float:
 
 
 _SPLIT: Final = 536870913.0  # 2**29 + 1: Veltkamp's constant, a double's top 24 bits
+_SPLIT23: Final = 1073741825.0  # 2**30 + 1: its top 23 bits
 _F32_TINY: Final = 1.1754943508222875e-38  # 2**-126, the least normal float
 _F32_BIG: Final = 1.7014118346046923e38  # 2**127
 
@@ -71,9 +72,10 @@ def f32(value: float) -> float:
     """`value` rounded to a C float (overflow gives an infinity, as C does).
 
     Compiled (robox.native), in native double arithmetic: Veltkamp's split takes a
-    normal number's nearest 24-bit neighbour; only a tie (the other neighbour, as far
-    on the other side, has 24 bits too), a subnormal, a huge, infinite or NaN value goes
-    to struct_f32, which rounds ties to even. Interpreted, the name is struct_f32."""
+    normal number's nearest 24-bit neighbour; at a tie (the other neighbour, as far on
+    the other side, has 24 bits too) the even one is taken, the one that fits in 23
+    bits. A subnormal, a huge, infinite or NaN value goes to struct_f32. Interpreted,
+    the name is struct_f32."""
     if value == 0.0:
         return value  # either zero, its sign kept
     a = abs(value)
@@ -87,6 +89,9 @@ def f32(value: float) -> float:
         c = other * _SPLIT
         if c - (c - other) != other:
             return hi
+        # a tie: the neighbour whose last bit is 0, the one that has 23 bits
+        c = hi * _SPLIT23
+        return hi if c - (c - hi) == hi else other
     return struct_f32(value)
 
 
