@@ -62,24 +62,30 @@ def looks_like_gcode(text: bytes) -> bool:
     return all(w[:1].upper() in (b"G", b"M", b"T") for w in words[:50])
 
 
+# ASCII letters upper-cased and the four separators str.split() knows beyond bytes.split()
+# (\x1c-\x1f) made blanks, in one pass: the bytes then split as their text would
+_UPPER_BLANKS = bytes(range(256)).replace(
+    bytes(range(0x61, 0x7B)), bytes(range(0x41, 0x5B))).replace(b"\x1c\x1d\x1e\x1f", b"    ")
+
+
 def words(line: bytes) -> tuple[str, dict[str, str]]:
     """('G1', {'X': '10', 'E': '.5'}) from b'G1 X10 E.5'; letters upper-cased. Words may
     be run together (b'G1X10E.5'), as some slicers write them: a word is any character
     but a blank, then everything up to the next letter or blank."""
-    text = line.decode("ascii").upper()
-    parts = text.split()
+    parts = line.translate(_UPPER_BLANKS).split()
     # one word per blank-separated part, as nearly every slicer writes them, unless a
-    # letter follows a part's first character (words run together)
+    # letter follows a part's first character (words run together); bytes, whose
+    # isupper() looks at ASCII alone
     if parts and not parts[0][1:].isupper():
         params: dict[str, str] = {}
         for part in parts[1:]:
             value = part[1:]
             if value.isupper():
                 break
-            params[part[0]] = value
+            params[part[:1].decode("ascii")] = value.decode("ascii")
         else:
-            return parts[0], params
-    out = _WORD.findall(text)
+            return parts[0].decode("ascii"), params
+    out = _WORD.findall(line.decode("ascii").upper())
     if not out:
         return "", {}
     (letter, number), rest = out[0], out[1:]

@@ -268,21 +268,22 @@ class Translator:
         return "S" if (self.tool if tool is None else tool) == 1 else "T"
 
     # ------------------------------------------------------------ output helpers
-    def _open(self) -> Iterator[bytes]:
+    # (each line's output is appended to a list the caller holds: compiled, no generator
+    # is made and resumed for every line)
+    def _open(self, out: list[bytes]) -> None:
         if self.kind != "plain" and not self.valve_open:
             self.valve_open = True
             self.s.valve_cycles += 1
-            yield b"G0 B1"
+            out.append(b"G0 B1")
 
-    def _close(self) -> Iterator[bytes]:
+    def _close(self, out: list[bytes]) -> None:
         if self.kind != "plain" and self.valve_open:
             self.valve_open = False
-            yield b"G0 B0"
+            out.append(b"G0 B0")
 
-    def _drop(self, code: str) -> Iterator[bytes]:
+    def _drop(self, code: str) -> None:
         if code not in DROPPED_QUIETLY:
             self.s.dropped[code] += 1
-        return iter(())
 
     # ------------------------------------------------------------ the stream
     def run(self, lines: Iterable[bytes]) -> Iterator[bytes]:
@@ -296,6 +297,7 @@ class Translator:
             return
         if self.o.sequences:
             yield from self._count(self._sequence("start"))
+        out: list[bytes] = []
         for raw in lines:
             s.lines_in += 1
             line = code_part(raw)
@@ -309,13 +311,14 @@ class Translator:
                 yield from self._count(self._expand(line))
                 continue
             try:
-                out = list(self._line(line))
+                self._line(line, out)
             except UsageError as e:
                 raise UsageError(f"line {s.lines_in}: {e}") from None
-            for produced in out:  # (_count() written out: no generator per line)
-                s.lines_out += 1
-                yield produced
-        yield from self._count(self._close())
+            s.lines_out += len(out)
+            yield from out
+            out.clear()
+        self._close(out)
+        yield from self._count(out)
         if self.o.sequences:
             yield from self._count(self._sequence("end"))
 
@@ -377,28 +380,30 @@ class Translator:
                         self.s.volume_mm3[axis] += value
 
     # ------------------------------------------------------------ one line
-    def _line(self, line: bytes) -> Iterator[bytes]:
+    def _line(self, line: bytes, out: list[bytes]) -> None:
+        """The job's lines for one of the slicer's, appended to `out`."""
         code, p = words(line)
         if not code or code[0] not in "GMT" or not code[1:].isdigit():
-            yield from self._drop(code or "?")
+            self._drop(code or "?")
             return
-        code = code[0] + str(int(code[1:]))
-        if code in ("G0", "G1"):
-            yield from self._move(code, p)
+        if code[1] == "0" and len(code) > 2:  # G01: leading zeros dropped
+            code = code[0] + str(int(code[1:]))
+        if code == "G1" or code == "G0":  # (two comparisons: compiled, no tuple searched)
+            self._move(code, p, out)
         elif code == "G92":
             if "E" in p:
                 self.e_position[self.tool] = _number(p["E"], "G92 E")
             kept = [f"{a}{p[a]}" for a in "XYZ" if a in p]
             if kept:
-                yield ("G92 " + " ".join(kept)).encode()
+                out.append(("G92 " + " ".join(kept)).encode())
         elif code == "G90":
             self.relative_axes = False
             self.relative_e = False
-            yield b"G90"
+            out.append(b"G90")
         elif code == "G91":
             self.relative_axes = True
             self.relative_e = True
-            yield b"G91"
+            out.append(b"G91")
         elif code == "M82":
             self.relative_e = False
         elif code == "M83":
@@ -414,134 +419,148 @@ class Translator:
                     self.s.dropped["G28 (homed by the start sequence)"] += 1
                     return
                 axes = ["X", "Y", "Z"]
-            yield from self._close()
-            yield ("G28 " + " ".join(axes)).encode()
+            self._close(out)
+            out.append(("G28 " + " ".join(axes)).encode())
         elif code in ("G10", "G11"):  # firmware retraction
             if code == "G10":
                 self.s.retractions += 1
-                yield from self._close()
+                self._close(out)
         elif code in ("M104", "M109"):
-            yield from self._nozzle_temperature(code, p)
+            self._nozzle_temperature(code, p, out)
         elif code in ("M140", "M190"):
             t = p.get("S") or p.get("R")
             if t is not None:
-                yield f"M140 S{_fmt(max(0.0, _number(t, code)))}".encode()
+                out.append(f"M140 S{_fmt(max(0.0, _number(t, code)))}".encode())
             if code == "M190" and (t is None or _number(t, code) > 0):
-                yield b"M190"
+                out.append(b"M190")
         elif code in ("M141", "M191"):
             t = p.get("S") or p.get("R")
             if t is not None:
-                yield f"M170 S{_fmt(max(0.0, _number(t, code)))}".encode()
+                out.append(f"M170 S{_fmt(max(0.0, _number(t, code)))}".encode())
         elif code == "M106":
             if _number(p.get("P", "0"), "M106 P") != 0:
                 self.s.dropped["M106 P (a second fan)"] += 1
                 return
             speed = _number(p.get("S", "255"), "M106 S")
-            yield f"M106 S{int(max(0, min(255, round(speed))))}".encode()
+            out.append(f"M106 S{int(max(0, min(255, round(speed))))}".encode())
         elif code == "M107":
             if _number(p.get("P", "0"), "M107 P") != 0:
                 self.s.dropped["M107 P (a second fan)"] += 1
                 return
-            yield b"M107"
+            out.append(b"M107")
         elif code in ("M18", "M84"):
-            yield b"M84"
+            out.append(b"M84")
         elif code in ("G4", "M400"):
-            yield (code + "".join(f" {k}{v}" for k, v in p.items() if k in "SP")).encode()
+            out.append((code + "".join(f" {k}{v}" for k, v in p.items() if k in "SP")).encode())
         elif code[0] == "T":
-            yield from self._tool(int(code[1:]))
+            self._tool(int(code[1:]), out)
         else:
-            yield from self._drop(code)
+            self._drop(code)
 
-    def _nozzle_temperature(self, code: str, p: dict[str, str]) -> Iterator[bytes]:
+    def _nozzle_temperature(self, code: str, p: dict[str, str], out: list[bytes]) -> None:
         tool = int(_number(p["T"], code + " T")) if p.get("T") else None
         if tool is not None and tool not in (0, 1):
             raise UsageError(f"{code} T{tool}: a Robox has tools 0 and 1")
         t = p.get("S") or p.get("R")
         if t is not None:
             value = max(0.0, _number(t, code))
-            yield f"M104 {self._heater(tool)}{_fmt(value)}".encode()
+            out.append(f"M104 {self._heater(tool)}{_fmt(value)}".encode())
             if code == "M109" and value > 0:
-                yield b"M109"
+                out.append(b"M109")
         elif code == "M109":
-            yield b"M109"
+            out.append(b"M109")
 
-    def _tool(self, tool: int) -> Iterator[bytes]:
+    def _tool(self, tool: int, out: list[bytes]) -> None:
         if tool not in (0, 1) or (tool == 1 and self.kind != "dual"):
             raise UsageError(f"T{tool}: a {self.o.head.strip()} head prints one material "
                              "(slice for a single extruder, or use a dual-material head)")
         if tool == self.tool:
             return
-        yield from self._close()
+        self._close(out)
         self.tool = tool
-        yield f"T{self._tool_nozzle()}".encode()
+        out.append(f"T{self._tool_nozzle()}".encode())
 
-    def _nozzle_for_width(self) -> Iterator[bytes]:
+    def _nozzle_for_width(self, out: list[bytes]) -> None:
         if self.width is None:
             return
         wanted = 1 if self.width >= WIDE_MM else 0
         if wanted != self.nozzle:
-            yield from self._close()
+            self._close(out)
             self.nozzle = wanted
             self.s.nozzle_changes += 1
-            yield f"T{wanted}".encode()
+            out.append(f"T{wanted}".encode())
 
-    def _move(self, code: str, p: dict[str, str]) -> Iterator[bytes]:
-        axes = {a: p[a] for a in "XYZ" if a in p}
-        for a, v in axes.items():
-            _number(v, a)
-        feed = f" F{_fmt(_number(p['F'], 'F'))}" if "F" in p else ""
+    def _move(self, code: str, p: dict[str, str], out: list[bytes]) -> None:
+        # the head of the line out: the code and the axes the slicer gave, each checked
+        # (written out per axis: compiled, no dict or iterator made for a move)
+        head = code
+        axes = False
+        v = p.get("X")
+        if v is not None:
+            _number(v, "X")
+            head += " X" + v
+            axes = True
+        v = p.get("Y")
+        if v is not None:
+            _number(v, "Y")
+            head += " Y" + v
+            axes = True
+        v = p.get("Z")
+        if v is not None:
+            _number(v, "Z")
+            head += " Z" + v
+            axes = True
+        v = p.get("F")
+        feed = "" if v is None else " F" + _fmt(_number(v, "F"))
         if "B" in p or "D" in p:
             raise UsageError(f"{code} with B or D: a Robox word in a slicer's file")
         delta = 0.0
-        if "E" in p:
+        v = p.get("E")
+        if v is not None:
             if not self._mode_seen:  # as the first extrusion reads it
                 self._mode_seen = True
                 self.s.e_mode = ("relative " if self.relative_e else "absolute ") + \
                     ("mm3" if self.volumetric else "mm")
-            value = _number(p["E"], "E")
+            value = _number(v, "E")
             if self.relative_e:
                 delta = value
             else:
                 delta = value - self.e_position[self.tool]
                 self.e_position[self.tool] = value
         volume = delta if self.volumetric else delta * self._area()
-        head = code
-        for a, v in axes.items():  # (a loop, not join() over a generator: native compiled)
-            head += " " + a + v
         extruder = self._extruder()
         if volume < -1e-9:  # a retraction: the valve closes instead
             self.s.retractions += 1
             self.retracted[self.tool] += -volume
             if self.kind == "plain":
-                yield f"G1 {extruder}{_fmt(volume)}{feed}".encode()
+                out.append(f"G1 {extruder}{_fmt(volume)}{feed}".encode())
                 self.s.volume_mm3[extruder] += volume
             else:
-                yield from self._close()
+                self._close(out)
             if axes:
-                yield (head + feed).encode()
+                out.append((head + feed).encode())
             elif feed:  # `G1 F2400` alone sets the feed rate for the moves after it
-                yield f"{code}{feed}".encode()
+                out.append(f"{code}{feed}".encode())
             return
         if volume > 1e-9 and self.retracted[self.tool] > 0:  # the unretraction
             owed = min(volume, self.retracted[self.tool])
             self.retracted[self.tool] -= owed
             if self.kind == "plain":
-                yield f"G1 {extruder}{_fmt(owed)}".encode()
+                out.append(f"G1 {extruder}{_fmt(owed)}".encode())
                 self.s.volume_mm3[extruder] += owed
             volume -= owed
         if volume > 1e-9:
-            # (each generator only when it may yield: nearly every move needs neither)
             if self.width is not None:
-                yield from self._nozzle_for_width()
+                self._nozzle_for_width(out)
             if self.kind != "plain" and not self.valve_open:
-                yield from self._open()
+                self._open(out)
             self.s.volume_mm3[extruder] += volume
-            yield f"{head} {extruder}{_fmt(volume)}{feed}".encode()
+            out.append(f"{head} {extruder}{_fmt(volume)}{feed}".encode())
             return
         if axes:  # a travel: the valve stays as the slicer left it (closed by a retraction)
-            yield (head + feed).encode()
+            out.append((head + feed).encode())
         elif feed:
-            yield f"{code}{feed}".encode()
+            out.append(f"{code}{feed}".encode())
 
 
 def translate(lines: Iterable[bytes], options: Options, detected: Detected

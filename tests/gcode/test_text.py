@@ -19,13 +19,16 @@ def reference(line: bytes) -> tuple[str, dict[str, str]]:
 
 
 @settings(max_examples=2000, deadline=None)
-@given(st.text(alphabet="GMTXYZEFSgxe0123456789.-+ \t\x0b\x0c\x1c*;", max_size=40))
+@given(st.text(alphabet="GMTXYZEFSgxe0123456789.-+ \t\x0b\x0c\x1c\x1d\x1e\x1f*;{`",
+               max_size=40))
 @example("G1 X10 E.5")
 @example("G1X10E.5")
 @example("g1 x-1.5 y2 x3")
 @example("  \t ")
 @example("M117 Hello*7")
 @example("G1 X1Y2 F3")
+@example("G1 X1\x1fY2 E3")  # a separator to text's split(), not to bytes'
+@example("G1 X{1 Y`2")  # the bytes either side of the letters
 def test_words_follow_the_rule(text):
     line = text.encode("ascii")
     assert words(line) == reference(line)
