@@ -35,6 +35,7 @@ from robox.formats.sdcard import make_id
 from robox.host.transport import NoReply, TransportError
 
 CHUNK = 512
+PACKET_SIZE = 64  # the printer's bulk endpoints' packet (USB full speed)
 #: How long a reply may take to begin before the printer counts as not answering.
 DEFAULT_TIMEOUT_MS = 10_000
 #: -v logs each command and its reply in a line; -vv adds their bytes in hex.
@@ -191,8 +192,9 @@ class Printer:
             self.transport.write(frame, self.timeout)
             self.commands_sent += 1
             reply = b""
+            want = PACKET_SIZE
             while True:
-                reply += self.transport.read(64, self.timeout)
+                reply += self.transport.read(want, self.timeout)
                 if is_text(reply):
                     raise ProtocolError(f"the printer answered in text ({reply[:8]!r}), not "
                                         "a report: a text (Pronterface) host is using it or "
@@ -201,8 +203,12 @@ class Printer:
                     length = reply_length(reply)
                 except ValueError:
                     raise ProtocolError(f"unexpected reply {reply[:8]!r}") from None
-                if length is not None and len(reply) >= length:
-                    break
+                if length is not None:
+                    if len(reply) >= length:
+                        break
+                    # the rest in one read of whole packets: the reply's last packet, a
+                    # short one or the one that fills the buffer, ends the transfer
+                    want = -(-(length - len(reply)) // PACKET_SIZE) * PACKET_SIZE
             expected = REPLY_TO.get(frame[0], 0xE3)
             if wire_log.isEnabledFor(logging.INFO):
                 log_exchange(frame, reply)

@@ -12,7 +12,7 @@ from robox.cli import cli
 from robox.formats.protocol import reply_length
 from robox.gcode import prepare_job
 from robox.host.client import Printer, PrinterError, ProtocolError
-from robox.host.transport import Disconnected, UsbTransport
+from robox.host.transport import Disconnected, NoReply, UsbTransport
 from robox.sim import images
 from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
@@ -263,3 +263,53 @@ def test_a_text_reply_is_named_not_misread():
     device = usb.core.find(idVendor=0x16D0, idProduct=0x081B, backend=VirtualRoboxBackend(v))
     with pytest.raises(ProtocolError, match=r"answered in text \(b'ok\\r\\n'\)"):
         Printer(LineEnds(UsbTransport(device)))
+
+
+class BulkPackets:
+    """A transport that hands out the printer's replies as a USB bulk IN endpoint does:
+    in packets of 64 bytes, a read ending at a short packet or when its buffer is full.
+    A buffer that is not whole packets could overflow on a real bus, and a read left
+    waiting after the reply's last full packet would time out: both fail the test."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.pending = b""
+        self.reads: list[int] = []
+
+    def write(self, data, timeout_ms=5000):
+        self.inner.write(data, timeout_ms)
+        reply = b""  # the whole reply, as the printer sends it
+        while reply_length(reply) is None or len(reply) < reply_length(reply):
+            reply += self.inner.read(64, timeout_ms)
+        self.pending = reply
+        self.reads.append(0)
+
+    def read(self, limit, timeout_ms=5000):
+        assert limit % 64 == 0, f"a {limit}-byte buffer is not whole packets"
+        self.reads[-1] += 1
+        out = b""
+        while len(out) < limit:
+            if not self.pending:
+                raise NoReply("the read waits for a packet that never comes")
+            packet, self.pending = self.pending[:64], self.pending[64:]
+            out += packet
+            if len(packet) < 64:
+                break
+        return out
+
+
+def test_a_reply_is_read_in_at_most_two_reads_of_whole_packets(virtual):
+    """The first packet says the reply's length; the rest comes in one read whose buffer
+    is whole packets, ended by the reply's short packet or by filling up exactly."""
+    printer = connect(virtual)
+    bulk = BulkPackets(printer.transport)
+    printer.transport = bulk
+    printer.status()  # 0xE1, several packets
+    printer.errors()
+    printer.read_eeprom("reel0")
+    printer.files()
+    printer.send_file(prepare_job(circle_job(4, heat=False)), "bulk")
+    printer.gcode("M105\r")
+    printer.gcode("M119\r")
+    assert len(bulk.reads) > 8
+    assert max(bulk.reads) == 2  # the long ones took two, no more
