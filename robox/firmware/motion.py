@@ -174,7 +174,8 @@ class Motion:
     def ready_for_more(self) -> bool:
         """is_buffer_ready_for_more: not full, and the steps queued are fewer than the
         newest block's speed needs to stop plus a 0.1 s margin."""
-        return self._counts_until_ready(self.pa["acceleration"]) == 0
+        n = self._counts_until_ready(self.pa["acceleration"])
+        return n is not None and n == 0  # (compiled: a native comparison, not a generic one)
 
     def aborting(self) -> bool:
         return self.fw.job.abort_flag
@@ -218,17 +219,26 @@ class Motion:
         m = self.machine
         now = self.fw.clock.now
         invert = self.fw.parameters.axis_list("invert_switch")
+        acc = self.acc
+        counters = self.autoload_counter
         for i in range(2):
             axis = E + i  # then D
-            if m.switch_pin(axis) == invert[axis]:  # no filament
+            # (typed locals: compiled, the tests and the mask below are native)
+            level: int = invert[axis]
+            if m.switch_pin(axis) == level:  # no filament
                 if now - self.holdoff_since < FILAMENT_HOLDOFF_S or not self.empty():
-                    self.autoload_counter[i] = 0
-                elif m.index_wheel(axis) != (self.autoload_counter[i] & 1):
-                    self.autoload_counter[i] += 1
-                if self.autoload_counter[i] >= FILAMENT_AUTOLOAD_THRESHOLD:
+                    if counters[i]:
+                        counters[i] = 0
+                else:
+                    counter: int = counters[i]
+                    if m.index_wheel(axis) != (counter & 1):
+                        counters[i] = counter + 1
+                if counters[i] >= FILAMENT_AUTOLOAD_THRESHOLD:
                     self.fw.job.execute_gcode(b"M120 D\n" if i else b"M120 E\n")
-                    self.autoload_counter[i] = 0
-                self.acc[axis] &= 0xFFFF
+                    counters[i] = 0
+                held: i64 = acc[axis]
+                if held > 0xFFFF:
+                    acc[axis] = held & 0xFFFF
                 continue
             self.autoload_counter[i] = 0
             until_slip = self.what == UNTIL_SLIP
@@ -386,9 +396,8 @@ class Motion:
     def steps_for(self, axis: int, move: float, spu: float | None = None) -> int:
         """The whole steps add_block gives `move` mm on `axis` (on B in chunks of 64
         while the nozzle heaters are forced off)."""
-        if spu is None:
-            spu = self.pa["steps_per_unit"][AXES[axis]]
-        v = float32(move * spu)
+        per_unit: float = self.pa["steps_per_unit"][AXES[axis]] if spu is None else spu
+        v = float32(move * per_unit)  # (a float local: compiled, a native product)
         if axis == B and self.fw.heaters.nozzle_forcing:
             return wrap_long(64 * floor_long(v / 64.0 + 0.5))
         v += 0.5
@@ -463,10 +472,10 @@ class Motion:
         limit = self.tick_of(until)
         last = self.fw.clock.now
         a: i64 = self.pa["acceleration"]  # (as catch_up() reads it)
+        ready = kind == "ready"  # (compared once, not at every run of interrupts)
         while True:
-            cap = self._counts_until_ready(a) if kind == "ready" else \
-                (0 if self.empty() else None)
-            if cap == 0:
+            cap = self._counts_until_ready(a) if ready else (0 if self.empty() else None)
+            if cap is not None and cap == 0:  # (compiled: native, not a generic ==)
                 return last
             if self.next_tick > limit or not self.machine.z_top_pin():
                 return None

@@ -53,7 +53,8 @@ class EepromChip:
         self.transactions += 1
         if self.journal is not None:
             self.journal.append(kind)
-        if self.faults.unplug_at == self.transactions:
+        unplug_at = self.faults.unplug_at
+        if unplug_at is not None and unplug_at == self.transactions:  # (compiled: native)
             self.plugged = False
         if not self.plugged or self._now() < self._busy_until:
             self.nacks += 1

@@ -96,6 +96,12 @@ class ThermalModel:
     duty: float = 0.0  # 0..1
     thermistor_ok: bool = True
 
+    def __post_init__(self) -> None:
+        # the decays over the last step's length (steps of one pass repeat: exp() once)
+        self._step = -1.0
+        self._step_tau = self._step_lag = 0.0
+        self._fall = self._lag_fall = 1.0
+
     @property
     def temperature(self) -> float:
         """What the thermistor reads."""
@@ -110,15 +116,18 @@ class ThermalModel:
         target = self.ambient + self.gain * self.duty
         if self.core == target and self.sensed == target:
             return  # at rest: the formulas below would give these very values again
+        if seconds != self._step or self.tau != self._step_tau or self.lag != self._step_lag:
+            self._step, self._step_tau, self._step_lag = seconds, self.tau, self.lag
+            self._fall = math.exp(-seconds / self.tau)
+            self._lag_fall = math.exp(-seconds / self.lag) if self.lag > 0.0 else 0.0
         core = self.core - target
-        fall = math.exp(-seconds / self.tau)
+        fall = self._fall
         self.core = target + core * fall
         if self.lag <= 0.0:
             self.sensed = self.core
             return
         follow = core * self.tau / (self.tau - self.lag)
-        self.sensed = target + follow * fall + \
-            (self.sensed - target - follow) * math.exp(-seconds / self.lag)
+        self.sensed = target + follow * fall + (self.sensed - target - follow) * self._lag_fall
 
 
 @dataclass
@@ -295,8 +304,13 @@ class Machine:
         hand = self.hand
         return hand[E] > 0 or hand[D] > 0
 
+    def __post_init__(self) -> None:
+        # the heat models in a list, which advance() goes through (compiled, a list is
+        # walked natively where a dict's values are iterated through the generic protocol)
+        self._heater_list = list(self.heaters.values())
+
     def advance(self, seconds: float) -> None:
-        for heater in self.heaters.values():
+        for heater in self._heater_list:
             heater.advance(seconds)
         if not self.hand_busy():
             return
