@@ -142,10 +142,11 @@ class Firmware:
         return self._light_usb() or not self.eeproms.all_quiet()
 
     def _light_usb(self) -> bool:
-        # While a job runs the hours counter adds up time pass by pass, and the command
-        # a transfer brings (a pause, say) acts before it in the pass that sees it: the
-        # passes before must have been counted whole, so they are not light.
-        return self.hw.usb.arriving and not self.job.running
+        # While a job runs, its line may start, end or look again at any pass: the
+        # passes a transfer crosses in are light only while that line waits on motion
+        # alone (they end with the frame that lands it, and the pass that takes it, a
+        # pause say, is whole; the hours counter is brought up to date before it).
+        return self.hw.usb.arriving and (not self.job.running or self._only_motion_awaited())
 
     def _busy_apart_from_light(self) -> bool:
         usb = self.hw.usb
@@ -153,16 +154,16 @@ class Firmware:
         line_ready = command.line is not None and (command.waiting is None
                                                    or command.waiting.next_pass())
         return bool((usb.received and not command.deaf) or line_ready
-                    or (usb.arriving and self.job.running)
+                    or (usb.arriving and self.job.running and not self._only_motion_awaited())
                     or self.heaters.conversion_ready
                     or command.pending_after_reply or self.job.runnable()
                     or self.reset_requested or self.hours.due())
 
     def _only_motion_awaited(self) -> bool:
         """Motion runs and all that waits is a job line waiting on it: room in the queue
-        or the queue empty (no dwell, no heater), with no host transfer crossing."""
+        or the queue empty (no dwell, no heater)."""
         wait = self.job.waiting
-        return (not self.motion.empty() and not self.hw.usb.arriving
+        return (not self.motion.empty()
                 and self.job.current is not None and wait is not None
                 and wait.motion is not None and wait.until is None and wait.heater is None
                 and self.command.waiting is None)
@@ -238,6 +239,8 @@ class Firmware:
                 return PASS_S, 1
             most = int((horizon - now) / PASS_S + 1e-9)
             if stepping:  # light passes up to the first EEPROM step that is not inert
+                if self.hw.usb.arriving:  # and to the frame that lands a transfer
+                    most = min(most, self.hw.usb.frames_to_land() + 1)
                 most = min(most, self.eeproms.inert_passes(PASS_S, most - 1) + 1)
                 if most < 2:
                     return PASS_S, 1
@@ -263,7 +266,9 @@ class Firmware:
         """One pass of the loop after the clock moves on by `step` (default: as far as
         nothing is missed), `passes` times over (the passes between do nothing)."""
         dt = self.next_step() if step is None else step
-        if passes > 1 and self._light_work():
+        # (whatever light work plan() saw: the interrupts it ran ahead may since have
+        # emptied the queue, which ends the wait that let a transfer's frames be light)
+        if passes > 1 and (self.hw.usb.arriving or not self.eeproms.all_quiet()):
             self._run_light_passes(dt, passes - 1)
             passes = 1
         self.clock.advance(dt, passes)
