@@ -315,6 +315,29 @@ def test_inert_passes_says_how_many_passes_run_inert_passes_runs(name):
     assert max(runs) > 50  # long runs of reads were predicted, not only single steps
 
 
+@pytest.mark.parametrize("left", [1, 2, 9, 60, 150])
+def test_a_settled_eeproms_bank_end_ends_a_long_run(left):
+    """A settled EEPROM steps every 10 ms; the step that ends its bank is not inert, so a
+    run predicted over many passes stops short of it, however few of its steps are left
+    before it: the count predicted is the count run, and the step comes next."""
+    p = VirtualPrinter(media=fresh())
+    fw = p.firmware
+    eeproms = fw.eeproms
+    p.settle()
+    head = eeproms.states[HEAD]
+    while head.counter != BANK_SIZE - left or not eeproms.all_quiet():
+        fw.run_pass(0.001)
+    predicted = eeproms.inert_passes(0.001, 5000)
+    assert predicted < 12 * left + 12  # the bank's end (10 or 11 passes a step), not 5000
+    for most in range(1, predicted + 30, 1 if left < 10 else 7):  # shorter runs: as far
+        assert eeproms.inert_passes(0.001, most) == min(most, predicted)
+    assert eeproms.run_inert_passes(0.001, 5000) == predicted
+    banks = head.verified_banks
+    while head.verified_banks == banks:  # the passes before it would have stepped inertly
+        fw.run_pass(0.001)
+        assert head.counter in (BANK_SIZE - 1, 0)
+
+
 def test_run_until_with_no_condition_runs_the_whole_timeout():
     """No condition (a host idling beside a virtual printer) runs the timeout through and
     ends where a condition that never holds ends, pass for pass."""
