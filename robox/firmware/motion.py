@@ -75,16 +75,20 @@ UNTIL_SLIP: Final = 3
 
 
 class Block:
-    __slots__ = ("check_z_top", "end_speed", "inc", "length", "movers", "speed")
+    __slots__ = ("check_z_top", "end_speed", "inc", "length", "movers", "speed", "turn")
 
     length: i64
     speed: i64
     end_speed: i64
+    #: the largest change of increment on any axis from the block queued before it (the
+    #: junction's limit: both blocks' increments are fixed once this one is queued)
+    turn: i64
 
     def __init__(self) -> None:
         self.length = 0
         self.speed = MIN_SPEED
         self.end_speed = 0
+        self.turn = 0
         self.inc = [0] * 6
         self.check_z_top = False
         self.movers: tuple[int, ...] = ()
@@ -315,11 +319,17 @@ class Motion:
         steps = [0] * 6
         length = 0
         # An axis that does not move costs nothing below: every float32() of a zero is
-        # zero, and max() with a zero leaves the running value as it was.
+        # zero, and max() with a zero leaves the running value as it was. (Each list item
+        # is read into a typed local once: compiled, one unboxing, native arithmetic.)
         for i in range(6):
-            if moves[i]:
-                steps[i] = self.steps_for(i, moves[i], spu[i])
-                length = max(length, abs(steps[i]))
+            move: float = moves[i]
+            if move:
+                n: int = self.steps_for(i, move, spu[i])
+                steps[i] = n
+                if n < 0:
+                    n = -n
+                if n > length:
+                    length = n
         if length < 1:
             for i in range(6):
                 moves[i] = 0.0
@@ -337,17 +347,20 @@ class Motion:
                     and all(m > 0.0 for m in max_speed)):
                 min_duration = 0.0
                 for i in range(6):
-                    if moves[i]:
-                        min_duration = float32(max(min_duration, abs(moves[i]) / max_speed[i]))
+                    move = moves[i]
+                    if move:
+                        min_duration = float32(max(min_duration, abs(move) / max_speed[i]))
                 v = 0.0
                 for i in range(3):
-                    if moves[i]:
-                        v = float32(v + float32(moves[i] * moves[i]))
+                    move = moves[i]
+                    if move:
+                        v = float32(v + float32(move * move))
                 v = float32(math.sqrt(v))
                 min_duration = max(min_duration, float32(v / feed_rate))
                 for i in range(3, 6):
-                    if moves[i]:
-                        min_duration = float32(max(min_duration, abs(moves[i]) / speed_limit))
+                    move = moves[i]
+                    if move:
+                        min_duration = float32(max(min_duration, abs(move) / speed_limit))
                 if min_duration > 0.0:
                     speed = min(float32(MAX_SPEED),
                                 float32(length) / (SPEED_UNITS * min_duration))
@@ -361,22 +374,33 @@ class Motion:
         movers = []
         exact = length < 16777216  # whole numbers below 2**24 are floats as they are
         f32_length = float(length) if exact else float32(length)
+        incs = blk.inc
+        before = self.block[(self.buffer_in - 1) & MASK].inc
+        turn: i64 = 0
         for i in range(6):
-            if not steps[i]:
-                blk.inc[i] = 0
+            count: int = steps[i]
+            per_unit: float = spu[i]
+            inc: int = 0
+            if not count:
                 # floor(0.5) / steps per unit: 0, unless M92 made that 0 or NaN
-                moves[i] = 0.0 if spu[i] > 0.0 else float32(div(0.0, spu[i]))
-                continue
-            f32_steps = float(steps[i]) if exact else float32(steps[i])
-            inc = math.floor(65536.0 * f32_steps / f32_length)
-            blk.inc[i] = inc
-            product = float32(float32(inc) * f32_length)
-            moves[i] = float32(div(math.floor((product + 32768.0) / 65536.0), spu[i]))
-            if inc:
-                movers.append(i)
-                self._make_motor_active(i)
+                moves[i] = 0.0 if per_unit > 0.0 else float32(div(0.0, per_unit))
+            else:
+                f32_steps = float(count) if exact else float32(count)
+                inc = math.floor(65536.0 * f32_steps / f32_length)
+                product = float32(float32(inc) * f32_length)
+                moves[i] = float32(div(math.floor((product + 32768.0) / 65536.0), per_unit))
+                if inc:
+                    movers.append(i)
+                    self._make_motor_active(i)
+            incs[i] = inc
+            change: i64 = inc - before[i]
+            if change < 0:
+                change = -change
+            if change > turn:
+                turn = change
         blk.movers = tuple(movers)
-        if blk.inc[B]:
+        blk.turn = turn
+        if incs[B]:
             self.fw.heaters.force_nozzles_off(True)
         n = self.queued()
         b = self.buffer_in
@@ -385,7 +409,7 @@ class Motion:
         a: i64 = self.pa["acceleration"]  # (read once: nothing here changes it)
         while n > 0:
             prev = (b - 1) & MASK
-            end_speed = self._end_speed(self.block[prev], self.block[b], a)
+            end_speed = self._end_speed(self.block[b], a)
             if end_speed == self.block[prev].end_speed:
                 break  # so every block before it would come out as it is
             self.block[prev].end_speed = end_speed
@@ -427,21 +451,14 @@ class Motion:
         if axis == B:
             self.fw.heaters.set_head_power(True)
 
-    def _end_speed(self, this: Block, nxt: Block, a: i64) -> int:
-        """The junction speed from `this` block into `nxt` (the acceleration `a`)."""
+    def _end_speed(self, nxt: Block, a: i64) -> int:
+        """The junction speed into `nxt` from the block queued before it (the
+        acceleration `a`)."""
         v = (min(0x00800000, nxt.length) << 1) * a
         v += (nxt.end_speed * nxt.end_speed) >> 4
         end_speed = min(nxt.speed, isqrt32(v & U32) << 2)
-        p, q = this.inc, nxt.inc
-        worst: i64 = 0  # the largest change of increment on any axis
-        for k in range(6):
-            d: i64 = p[k] - q[k]
-            if d < 0:
-                d = -d
-            if d > worst:
-                worst = d
-        if worst > 0:
-            end_speed = min(end_speed, self.max_speed_step // worst)
+        if nxt.turn > 0:
+            end_speed = min(end_speed, self.max_speed_step // nxt.turn)
         return max(MIN_SPEED, min(MAX_SPEED, end_speed))
 
     def wait_until_empty(self) -> Waits:
