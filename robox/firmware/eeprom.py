@@ -433,6 +433,32 @@ class Eeproms:
             self._take_reads(state, chip, done)
         return done
 
+    def light_steps(self, at: float) -> bool:
+        """Whether the steps of a pass at `at` change nothing another object looks at,
+        though they may not be inert: each EEPROM that steps is a verifying one whose
+        read or write is answered and does not end its bank (a read that finds a byte
+        to rewrite, the write, the read back), or a settled one taking an inert read.
+        No status changes and no bank is verified, so quiet() and every listener see
+        what they saw before (Firmware._step_pass)."""
+        for state in self.states:
+            if state.status is VALID and state.verified_banks >= 2:
+                if at - state.last_step >= QUIET_STEP_S \
+                        and self._inert_steps(state, self.bus.chip(state.index), at) == 0:
+                    return False
+                continue
+            chip = self.bus.chip(state.index)
+            if state.status is not VALID:
+                if chip is None and state.status is NOT_PRESENT \
+                        and not (state.counter or state.working_bank or state.writing):
+                    continue  # an empty socket already given up (see _maintain_chips)
+                return False
+            if chip is None or not chip.will_acknowledge(at):
+                return False
+            if not state.writing and state.counter == BANK_SIZE - 1 \
+                    and chip.peek_run(self._address(state), 1)[0] == state.buffer[state.counter]:
+                return False  # the read that verifies the bank
+        return True
+
     def inert_passes(self, dt: float, most: int) -> int:
         """How many passes `run_inert_passes(dt, most)` would run from now, found without
         running them: the loop runs motion ahead only as far as the EEPROMs' steps in

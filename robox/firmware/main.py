@@ -70,6 +70,9 @@ class Firmware:
         self.clock = hw.clock
         self.resets = 0
         self.whole_passes = 0  # do_everything_else() run, all power-ups together
+        self.step_passes = 0  # passes that took only the EEPROMs' steps (_step_pass)
+        # plan() to run_pass(): the last pass planned may take only the EEPROMs' steps
+        self._may_step = False
         self.power_up()
 
     # ------------------------------------------------------------ registry
@@ -187,6 +190,7 @@ class Firmware:
         _run_light_passes), the passes up to a pass short of the next moment any object
         waits for are light, and the last one is whole."""
         light = stepping = False
+        self._may_step = False
         if self._busy_apart_from_light():
             return PASS_S, 1
         if self._light_work():
@@ -238,14 +242,20 @@ class Firmware:
             if not skip or not motion.can_run_ahead() or horizon - now < 2 * PASS_S:
                 return PASS_S, 1
             most = int((horizon - now) / PASS_S + 1e-9)
+            may_step = False
             if stepping:  # light passes up to the first EEPROM step that is not inert
                 if self.hw.usb.arriving:  # and to the frame that lands a transfer
                     most = min(most, self.hw.usb.frames_to_land() + 1)
-                most = min(most, self.eeproms.inert_passes(PASS_S, most - 1) + 1)
-                if most < 2:
+                inert = self.eeproms.inert_passes(PASS_S, most - 1)
+                # that step's pass short of every other moment (a horizon, the pass that
+                # takes a landed transfer): it may be a step pass (see _step_pass)
+                may_step = inert + 1 < most
+                most = min(most, inert + 1)
+                if most < 2 and not may_step:
                     return PASS_S, 1
             when = motion.run_ahead(now + most * PASS_S, kind or "empty")
             if when is None:
+                self._may_step = may_step
                 return PASS_S, most
             tick, t, n = motion.tick_of(when), now, 0
             # the first pass that sees it, the clock added up as it will be; the passes
@@ -265,12 +275,16 @@ class Firmware:
     def run_pass(self, step: float | None = None, passes: int = 1) -> None:
         """One pass of the loop after the clock moves on by `step` (default: as far as
         nothing is missed), `passes` times over (the passes between do nothing)."""
+        may_step, self._may_step = self._may_step, False
         dt = self.next_step() if step is None else step
         # (whatever light work plan() saw: the interrupts it ran ahead may since have
         # emptied the queue, which ends the wait that let a transfer's frames be light)
         if passes > 1 and (self.hw.usb.arriving or not self.eeproms.all_quiet()):
             self._run_light_passes(dt, passes - 1)
             passes = 1
+        if may_step and passes == 1 and self.eeproms.light_steps(self.clock.now + dt):
+            self._step_pass(dt)
+            return
         self.clock.advance(dt, passes)
         self.hw.machine.advance(dt * passes)
         self.motion.catch_up()
@@ -279,6 +293,21 @@ class Firmware:
         self.hw.usb.frame()
         if self.reset_requested:
             self._reset()
+
+    def _step_pass(self, dt: float) -> None:
+        """A pass whose only work is the EEPROMs' steps, taken without the other objects:
+        plan() found the job's line still waiting on motion at it and no other moment
+        due, and Eeproms.light_steps() that none of the steps can change what another
+        object looks at (a verifying EEPROM's read or write, a settled one's inert
+        read). A write is made with the clock, the machine and the interrupts where
+        they are in a whole pass, so a power cut at it finds them there too."""
+        self.step_passes += 1
+        self.clock.advance(dt, 1)
+        self.hw.machine.advance(dt)
+        self.motion.catch_up()
+        self.eeproms.maintain()
+        self.hours.maintain()
+        self.hw.usb.frame()
 
     def _run_light_passes(self, dt: float, most: int) -> None:
         """Up to `most` light passes: passes in which the only work is an EEPROM's step

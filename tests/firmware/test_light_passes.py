@@ -48,10 +48,14 @@ class Log(PowerPlan):
         self.names = {id(c): f"chip{i}" for i, c in enumerate(hw.eeprom_bus.sockets) if c}
         self.names[id(hw.card)] = "card"
         self.events = []
+        self.ordinals = []  # (chip, its transaction count) at each EEPROM write
 
     def write(self, device, address, data):
         self.events.append(("write", self.names.get(id(device)), address, bytes(data),
                             round(self.printer.firmware.clock.now, 9)))
+        name = self.names.get(id(device))
+        if name is not None and name.startswith("chip"):
+            self.ordinals.append((name, device.transactions))
         return super().write(device, address, data)
 
 
@@ -191,7 +195,7 @@ PRINT = b"G28 X Y\n" + b"".join(
     + (b"M400\n" if i % 7 == 6 else b"") for i in range(1300))
 
 
-def printing(light: bool, cut_at: int | None = None) -> tuple:
+def printing(light: bool, cut_at: int | None = None, unplug_at: int | None = None) -> tuple:
     """The print above from power-up (uploaded while the chips load and the head moves),
     then to 17 s a status request every 0.5 s; after some of them a new head serial
     written with the rest of the head's first 160 bytes as they are (a transfer crossing
@@ -200,9 +204,11 @@ def printing(light: bool, cut_at: int | None = None) -> tuple:
     then the machine, the interrupts, the hours counter and the EEPROM object as they
     end. With `cut_at`, the supply fails during that write (in the order they reach a
     medium): then the moment, the machine, the interrupts and every chip and the card
-    as the power goes."""
+    as the power goes. With `unplug_at`, reel 0 is pulled out at that transaction."""
     media = fresh()
     p = VirtualPrinter(media=media)
+    if unplug_at is not None:
+        unplug_reel_after(unplug_at)(p)
     fw = p.firmware
     fw.light_passes = light
     log = Log(p)
@@ -249,7 +255,8 @@ def printing(light: bool, cut_at: int | None = None) -> tuple:
     # (a settled EEPROM's place in its banks follows the passes that ran: see above)
     states, chips, errors = outcome(p)
     states = [s if s[3] < 2 else (s[0], None, None, 2, s[4], s[5]) for s in states]
-    return log.events, ends, (states, chips, errors), fw.whole_passes
+    return (log.events, ends, (states, chips, errors), fw.whole_passes, log.ordinals,
+            fw.step_passes)
 
 
 def test_motion_runs_ahead_while_an_eeprom_rewrites_as_pass_by_pass():
@@ -269,6 +276,8 @@ def test_motion_runs_ahead_while_an_eeprom_rewrites_as_pass_by_pass():
     assert together[1] == whole[1] and together[1][7]  # still printing at the end
     assert together[2] == whole[2]
     assert together[3] * 2 < whole[3], (together[3], whole[3])
+    # the rewrites' reads that find a byte and their writes took passes of their own
+    assert together[5] > 100 and whole[5] == 0
 
 
 def test_a_power_cut_at_any_eeprom_write_while_motion_runs_ahead_is_as_pass_by_pass():
@@ -284,6 +293,28 @@ def test_a_power_cut_at_any_eeprom_write_while_motion_runs_ahead_is_as_pass_by_p
         together, whole = printing(True, cut_at), printing(False, cut_at)
         assert together[0] == writes[cut_at - 1][4]  # the moment of that write
         assert together == whole, cut_at
+
+
+def test_a_reel_pulled_out_around_a_rewrite_while_motion_runs_ahead_is_as_pass_by_pass():
+    """Reel 0 pulled out at the read that finds a byte to rewrite, at the write, and at the
+    read back, for the first bytes of the 14.4 s bookkeeping rewrite while the head moves:
+    the passes that take only the EEPROMs' steps (Firmware._step_pass) leave the same
+    writes, replies, machine and chips as every pass run whole, the chip's loss and the
+    0.2 s timeout after it included. (A settled EEPROM's reads are counted as the passes
+    ran, so each run's own transaction numbers locate those writes.)"""
+    located = {}
+    for light in (True, False):
+        events, ordinals = (lambda r: (r[0], r[4]))(printing(light))
+        moments = [e[4] for e in events if e[0] == "write" and str(e[1]).startswith("chip")]
+        located[light] = [n for (chip, n), t in zip(ordinals, moments, strict=True)
+                          if chip == "chip1" and t > 14.4][:3]
+    assert len(located[True]) == 3
+    for k in range(3):
+        for offset in (-1, 0, 1):
+            together = printing(True, unplug_at=located[True][k] + offset)
+            whole = printing(False, unplug_at=located[False][k] + offset)
+            assert together[:3] == whole[:3], (k, offset)
+            assert together[2][0][REEL0][0] == 0  # NOT_PRESENT at the end
 
 
 @pytest.mark.parametrize("name", [n for n in CASES if not CASES[n][2]])
