@@ -41,6 +41,7 @@ from collections import Counter
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Final
 
 from robox.errors import UsageError
 from robox.gcode.text import code_part, words
@@ -64,6 +65,8 @@ SLICERS = (  # (name, pattern in the first comment lines)
     ("KISSlicer", re.compile(rb"KISSlicer", re.I)),
 )
 SETTING = re.compile(rb"^;\s*([A-Za-z_ ]+?)\s*[=:]\s*(.*?)\s*$")
+
+MOVE_AXES: Final = ("X", "Y", "Z")
 
 # Codes dropped: the printer has no such code, or one with another meaning.
 DROPPED_QUIETLY = {"G21", "M82", "M83"}
@@ -492,24 +495,16 @@ class Translator:
 
     def _move(self, code: str, p: dict[str, str], out: list[bytes]) -> None:
         # the head of the line out: the code and the axes the slicer gave, each checked
-        # (written out per axis: compiled, no dict or iterator made for a move)
+        # (one lookup an axis: compiled, no dict or iterator made for a move)
         head = code
         axes = False
-        v = p.get("X")
-        if v is not None:
-            _number(v, "X")
-            head += " X" + v
-            axes = True
-        v = p.get("Y")
-        if v is not None:
-            _number(v, "Y")
-            head += " Y" + v
-            axes = True
-        v = p.get("Z")
-        if v is not None:
-            _number(v, "Z")
-            head += " Z" + v
-            axes = True
+        for i in range(3):
+            a = MOVE_AXES[i]
+            v = p.get(a)
+            if v is not None:
+                _number(v, a)
+                head += " " + a + v
+                axes = True
         v = p.get("F")
         feed = "" if v is None else " F" + _fmt(_number(v, "F"))
         if "B" in p or "D" in p:
