@@ -188,7 +188,8 @@ class Firmware:
         pass after it, as if every pass in between had looked and found nothing. When
         the only work is light (an EEPROM stepping, a transfer crossing the bus: see
         _run_light_passes), the passes up to a pass short of the next moment any object
-        waits for are light, and the last one is whole."""
+        waits for are light, and the last one is whole; while motion runs, that last one
+        may take the EEPROMs' steps alone instead (run_pass() decides: _step_pass)."""
         light = stepping = False
         self._may_step = False
         if self._busy_apart_from_light():

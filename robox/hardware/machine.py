@@ -119,7 +119,8 @@ class ThermalModel:
         if seconds != self._step or self.tau != self._step_tau or self.lag != self._step_lag:
             self._step, self._step_tau, self._step_lag = seconds, self.tau, self.lag
             self._fall = math.exp(-seconds / self.tau)
-            self._lag_fall = math.exp(-seconds / self.lag) if self.lag > 0.0 else 0.0
+            # (used only where the lag is not <= 0, the test below)
+            self._lag_fall = 0.0 if self.lag <= 0.0 else math.exp(-seconds / self.lag)
         core = self.core - target
         fall = self._fall
         self.core = target + core * fall
