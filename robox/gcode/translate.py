@@ -41,7 +41,6 @@ from collections import Counter
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Final
 
 from robox.errors import UsageError
 from robox.gcode.text import code_part, words
@@ -65,8 +64,6 @@ SLICERS = (  # (name, pattern in the first comment lines)
     ("KISSlicer", re.compile(rb"KISSlicer", re.I)),
 )
 SETTING = re.compile(rb"^;\s*([A-Za-z_ ]+?)\s*[=:]\s*(.*?)\s*$")
-
-MOVE_AXES: Final = ("X", "Y", "Z")
 
 # Codes dropped: the printer has no such code, or one with another meaning.
 DROPPED_QUIETLY = {"G21", "M82", "M83"}
@@ -189,6 +186,16 @@ def _number(text: str, what: str) -> float:
     if value - value != 0.0:  # infinite or NaN (math.isfinite() is a generic call compiled)
         raise UsageError(f"{what}: {text!r} is not a finite number")
     return value
+
+
+def _with_axis(head: str, p: dict[str, str], letter: str, prefix: str) -> str:
+    """`head` with the axis word `letter` of a move (written `prefix` + value), checked
+    as a number; `head` as it is when the move has none."""
+    v = p.get(letter)
+    if v is None:
+        return head
+    _number(v, letter)
+    return head + prefix + v
 
 
 def _width(text: bytes) -> float | None:
@@ -496,15 +503,8 @@ class Translator:
     def _move(self, code: str, p: dict[str, str], out: list[bytes]) -> None:
         # the head of the line out: the code and the axes the slicer gave, each checked
         # (one lookup an axis: compiled, no dict or iterator made for a move)
-        head = code
-        axes = False
-        for i in range(3):
-            a = MOVE_AXES[i]
-            v = p.get(a)
-            if v is not None:
-                _number(v, a)
-                head += " " + a + v
-                axes = True
+        head = _with_axis(_with_axis(_with_axis(code, p, "X", " X"), p, "Y", " Y"), p, "Z", " Z")
+        axes = len(head) > len(code)
         v = p.get("F")
         feed = "" if v is None else " F" + _fmt(_number(v, "F"))
         if "B" in p or "D" in p:
