@@ -108,6 +108,13 @@ class EepromState:
         return bytes(self.buffer[:DATA_SIZE])
 
 
+def _given_up(state: EepromState, chip: EepromChip | None) -> bool:
+    """An empty socket already given up: the step's read finds no chip, and its no-ack
+    leaves everything as it is."""
+    return chip is None and state.status is NOT_PRESENT \
+        and not (state.counter or state.working_bank or state.writing)
+
+
 class Eeproms:
     """The firmware object that owns the three EEPROMs."""
 
@@ -171,10 +178,7 @@ class Eeproms:
                     and state.verified_banks >= 2:
                 continue
             state.last_step = now
-            if state.status is NOT_PRESENT and self.bus.chip(state.index) is None \
-                    and not (state.counter or state.working_bank or state.writing):
-                # an empty socket already given up: the step's read finds no chip and
-                # its no-ack leaves everything as it is
+            if _given_up(state, self.bus.chip(state.index)):
                 state.acked = False
                 continue
             self._step(state)
@@ -448,9 +452,8 @@ class Eeproms:
                 continue
             chip = self.bus.chip(state.index)
             if state.status is not VALID:
-                if chip is None and state.status is NOT_PRESENT \
-                        and not (state.counter or state.working_bank or state.writing):
-                    continue  # an empty socket already given up (see _maintain_chips)
+                if _given_up(state, chip):
+                    continue
                 return False
             if chip is None or not chip.will_acknowledge(at):
                 return False
@@ -502,10 +505,9 @@ class Eeproms:
                 settled.append(state)
                 continue
             chip = self.bus.chip(state.index)
+            if _given_up(state, chip):
+                continue
             if chip is None:
-                if state.status is NOT_PRESENT \
-                        and not (state.counter or state.working_bank or state.writing):
-                    continue  # an empty socket already given up (see _maintain_chips)
                 return None
             most = min(most, self._inert_steps(state, chip, at))
             loading.append((state, chip))

@@ -244,7 +244,7 @@ class Motion:
                 if held > 0xFFFF:
                     acc[axis] = held & 0xFFFF
                 continue
-            self.autoload_counter[i] = 0
+            counters[i] = 0
             until_slip = self.what == UNTIL_SLIP
             threshold_mm = pa["filament_until_slip_threshold" if until_slip
                               else "filament_slip_threshold"]
@@ -253,12 +253,12 @@ class Motion:
                                    * self.fw.position.filament_multiplier(i)) * 65536.0)
             threshold = int(temp) if temp < 2147483648.0 else 0x7FFFFFFF
             if until_slip and self.filament_slip:
-                self.acc[axis] &= 0xFFFF
+                acc[axis] &= 0xFFFF
                 continue
-            count = self.acc[axis]
+            count = acc[axis]
             count = count - (1 << 32) if count & 0x80000000 else count
             if abs(count) > threshold:
-                self.acc[axis] &= 0xFFFF
+                acc[axis] &= 0xFFFF
                 self.filament_slip = True
                 if self.what == LOADING:
                     self.fw.errors.set(ErrorBit.D_LOAD_SLIP if i else ErrorBit.E_LOAD_SLIP)
