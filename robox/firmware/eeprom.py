@@ -425,7 +425,7 @@ class Eeproms:
                 continue
             at = clock.now + dt
             due = [state for state in settled if at - state.last_step >= QUIET_STEP_S]
-            if due and not all(self._inert_steps(state, self.bus.chip(state.index), at)
+            if due and not all(self._inert_steps(state, self.bus.chip(state.index), at, 1)
                                for state in due):
                 break
             clock.advance(dt)
@@ -447,7 +447,7 @@ class Eeproms:
         for state in self.states:
             if state.status is VALID and state.verified_banks >= 2:
                 if at - state.last_step >= QUIET_STEP_S \
-                        and self._inert_steps(state, self.bus.chip(state.index), at) == 0:
+                        and self._inert_steps(state, self.bus.chip(state.index), at, 1) == 0:
                     return False
                 continue
             chip = self.bus.chip(state.index)
@@ -485,7 +485,9 @@ class Eeproms:
                 if t - last[j] < QUIET_STEP_S:
                     continue
                 if left[j] < 0:
-                    left[j] = self._inert_steps(state, self.bus.chip(state.index), t)
+                    # (no more than the passes left: a step a pass at the most)
+                    left[j] = self._inert_steps(state, self.bus.chip(state.index), t,
+                                                most - k)
                 if left[j] == 0:
                     return k
                 left[j] -= 1
@@ -509,19 +511,23 @@ class Eeproms:
                 continue
             if chip is None:
                 return None
-            most = min(most, self._inert_steps(state, chip, at))
+            most = min(most, self._inert_steps(state, chip, at, most))
             loading.append((state, chip))
         return settled, loading, most
 
-    def _inert_steps(self, state: EepromState, chip: EepromChip | None, at: float) -> int:
+    def _inert_steps(self, state: EepromState, chip: EepromChip | None, at: float,
+                     most: int) -> int:
         """How many steps from a pass at `at` on are acknowledged reads that change
         nothing but this EEPROM's place in its bank (a bank's last byte is left out: its
-        step loads or verifies the bank, which another object, or quiet(), sees)."""
+        step loads or verifies the bank, which another object, or quiet(), sees), counted
+        no further than `most`: a verifying EEPROM's bytes are compared only that far."""
         if chip is None or state.writing or not chip.will_acknowledge(at):
             return 0
         n = BANK_SIZE - 1 - state.counter
         if chip.faults.unplug_at is not None and chip.faults.unplug_at > chip.transactions:
             n = min(n, chip.faults.unplug_at - chip.transactions - 1)
+        if n > most:
+            n = most
         if state.status is not VALID or n <= 0:
             return max(0, n)
         address = self._address(state)
