@@ -301,7 +301,7 @@ class Job:
             if now - self.slip_count_since >= SLIP_COUNT_DECAY_S:
                 self.slip_count = [max(0, c - 1) for c in self.slip_count]
                 self.slip_count_since = now
-            for i in (0, 1):
+            for i in range(2):  # (a range: compiled, a tuple's iterator is generic)
                 if slipped is None and motion.is_filament_slip_error(i) and not self.pause:
                     slipped = i
                     break
@@ -387,13 +387,14 @@ class Job:
         self._drive()
 
     def _drive(self) -> None:
-        try:
-            step = self.current
-            assert step is not None
-            self.waiting = next(step)
-        except StopIteration:
+        step = self.current
+        assert step is not None
+        # (a default, not StopIteration caught: a line's routine yields only Waits, and
+        # compiled, an exception caught costs a traceback entry at every line's end)
+        waiting = next(step, None)
+        if waiting is None:
             self.current = None
-            self.waiting = None
+        self.waiting = waiting
 
     def _buffer_line(self, buffer: bytearray, n: int) -> Waits:
         # (a buffered line's response goes nowhere: its routine runs one generator down
