@@ -324,7 +324,7 @@ class Motion:
         for i in range(6):
             move: float = moves[i]
             if move:
-                n: int = self.steps_for(i, move, spu[i])
+                n: int = self._steps(i, move, spu[i])
                 steps[i] = n
                 if n < 0:
                     n = -n
@@ -391,7 +391,6 @@ class Motion:
                 moves[i] = float32(div(math.floor((product + 32768.0) / 65536.0), per_unit))
                 if inc:
                     movers.append(i)
-                    self._make_motor_active(i)
             incs[i] = inc
             change: i64 = inc - before[i]
             if change < 0:
@@ -400,7 +399,10 @@ class Motion:
                 turn = change
         blk.movers = tuple(movers)
         blk.turn = turn
+        if movers:  # make_motor_active() for each axis that moves, once for them all
+            self.machine.motors_on = True
         if incs[B]:
+            self.fw.heaters.set_head_power(True)
             self.fw.heaters.force_nozzles_off(True)
         n = self.queued()
         b = self.buffer_in
@@ -417,10 +419,14 @@ class Motion:
             n -= 1
         return True
 
-    def steps_for(self, axis: int, move: float, spu: float | None = None) -> int:
+    def steps_for(self, axis: int, move: float) -> int:
         """The whole steps add_block gives `move` mm on `axis` (on B in chunks of 64
         while the nozzle heaters are forced off)."""
-        per_unit: float = self.pa["steps_per_unit"][AXES[axis]] if spu is None else spu
+        return self._steps(axis, move, self.pa["steps_per_unit"][AXES[axis]])
+
+    def _steps(self, axis: int, move: float, per_unit: float) -> int:
+        """steps_for() with the axis's steps per unit given (a float, not an optional
+        one: compiled, passed unboxed)."""
         v = float32(move * per_unit)  # (a float local: compiled, a native product)
         if axis == B and self.fw.heaters.nozzle_forcing:
             return wrap_long(64 * floor_long(v / 64.0 + 0.5))
@@ -445,11 +451,6 @@ class Motion:
             min_duration = cmax(min_duration, float32(div(abs(moves[i]), speed_limit)))
         return cmin(float(float32(MAX_SPEED)),
                     div(float32(length), SPEED_UNITS * min_duration))
-
-    def _make_motor_active(self, axis: int) -> None:
-        self.machine.motors_on = True
-        if axis == B:
-            self.fw.heaters.set_head_power(True)
 
     def _end_speed(self, nxt: Block, a: i64) -> int:
         """The junction speed into `nxt` from the block queued before it (the
