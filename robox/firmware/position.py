@@ -149,12 +149,13 @@ class Position:
         the steps make; whether a block was queued."""
         pa = self.pa
         pos, dest, off = self.position, self.destination, self.tool_offset
+        travel: list[float] = self.fw.parameters.axis_list("travel")
         for i in range(X, Y + 1):  # (a range: compiled, a tuple's iterator is generic)
             if self.homing_done[i]:
-                target = cmax(0.0, cmin(self._travel(i), f32(dest[i] + off[i])))
+                target = cmax(0.0, cmin(travel[i], f32(dest[i] + off[i])))
                 moves[i] = f32(target - pos[i])
         if self.homing_done[Z]:
-            target = cmin(self._travel(Z),
+            target = cmin(travel[Z],
                           cmax(0.0, dest[Z]) + off[Z] + self.z_correction(moves[X], moves[Y],
                                                                           dest[Z]))
             moves[Z] = f32(target - pos[Z])
@@ -233,14 +234,15 @@ class Position:
         has_xyz = has_edb = False
         distance = 0.0
         dest = self.destination
-        for i in (X, Y, Z):
+        for i in range(X, Z + 1):  # (ranges here: compiled, a tuple's iterator is generic)
             c = AXES[i]
             if line.has(c):
                 moves[i] = line.float(c) if self.relative else f32(line.float(c) - dest[i])
                 has_xyz = True
                 distance = f32(distance + f32(moves[i] * moves[i]))
         distance = f32(math.sqrt(distance))
-        for n, i in enumerate((E, D)):
+        for n in range(2):
+            i = E + n  # then D
             c = AXES[i]
             if line.has(c):
                 area = f32(self.diameter[n] * self.diameter[n]) * math.pi / 4.0
@@ -258,7 +260,7 @@ class Position:
             return
         for i in range(6):
             moves[i] = f32(moves[i] / f32(segments))
-        for n in (0, 1):
+        for n in range(2):
             booked = moves[E + n] * segments
             if booked - booked == 0.0:  # finite (math.isfinite() is a generic call compiled)
                 self.extruded_mm[n] += booked
@@ -395,7 +397,7 @@ class Position:
     def set_position(self, line: Line) -> Waits:
         """G92: wait for motion; the axes given are where the head is, and count as homed."""
         yield from self.motion.wait_until_empty()
-        for i in (X, Y, Z):
+        for i in range(X, Z + 1):  # (ranges here: compiled, a tuple's iterator is generic)
             c = AXES[i]
             if line.has(c):
                 self.destination[i] = line.float(c)
