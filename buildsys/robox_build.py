@@ -28,7 +28,7 @@ import sysconfig
 from setuptools import build_meta as _setuptools
 from setuptools.build_meta import *  # noqa: F403  (the standard hooks, unchanged)
 
-MYPYC = "mypy[mypyc]>=1.10"
+MYPYC = "mypy[mypyc]>=2.4"  # librt.vecs (robox/packed.py)
 CHOICE = "ROBOX_NATIVE"
 BUILD = "ROBOX_BUILD_KIND"  # what setup.py builds: "native" or "pure" (set here only)
 

@@ -32,6 +32,7 @@ MODULES = (
     "robox.formats.float8",
     "robox.gcode.translate",
     "robox.gcode.text",
+    "robox.packed",
 )
 
 

@@ -47,6 +47,7 @@ from robox.firmware.carith import sqrt as csqrt
 from robox.firmware.gcode import EMPTY_WAIT, READY_WAIT, Waits, wait_for
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, Machine, X, Y, Z
+from robox.packed import append, vec
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
@@ -80,6 +81,8 @@ class Block:
     length: i64
     speed: i64
     end_speed: i64
+    inc: vec[i64]  # per axis, 16.16 fixed point
+    movers: vec[i64]  # the axes whose increment is not 0
     #: the largest change of increment on any axis from the block queued before it (the
     #: junction's limit: both blocks' increments are fixed once this one is queued)
     turn: i64
@@ -89,9 +92,9 @@ class Block:
         self.speed = MIN_SPEED
         self.end_speed = 0
         self.turn = 0
-        self.inc = [0] * 6
+        self.inc = vec[i64]([0] * 6)
         self.check_z_top = False
-        self.movers: tuple[int, ...] = ()
+        self.movers = vec[i64]()
 
 
 def _max_speed_step(acceleration: int, allowable_error: int) -> int:
@@ -111,6 +114,7 @@ class Motion:
     last_tick: i64
     interrupts: i64
     switch_abandon_counter: i64
+    acc: vec[i64]  # the step accumulators, per axis
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
@@ -135,7 +139,7 @@ class Motion:
         # the lengths of the queued blocks added up, kept as they are queued and counted
         # down (is_buffer_ready_for_more adds them up each time it asks)
         self.queued_length: i64 = 0
-        self.acc = [0] * 6
+        self.acc = vec[i64]([0] * 6)
         self.active = False
         self.last_index = [0, 0]  # the interrupt's own copy; starts unknown (0)
         self.next_tick = self.tick_of(fw.clock.now) + IDLE_PERIOD
@@ -248,16 +252,19 @@ class Motion:
             until_slip = self.what == UNTIL_SLIP
             threshold_mm = pa["filament_until_slip_threshold" if until_slip
                               else "filament_slip_threshold"]
-            spu: float = self.fw.parameters.axis_list("steps_per_unit")[axis]
+            spu: float = self.fw.parameters.axis_floats("steps_per_unit")[axis]
             temp = float32(float32(float32(spu * threshold_mm)
                                    * self.fw.position.filament_multiplier(i)) * 65536.0)
             threshold = int(temp) if temp < 2147483648.0 else 0x7FFFFFFF
             if until_slip and self.filament_slip:
                 acc[axis] &= 0xFFFF
                 continue
-            count = acc[axis]
-            count = count - (1 << 32) if count & 0x80000000 else count
-            if abs(count) > threshold:
+            count = acc[axis]  # the 32-bit accumulator as a signed long, its size
+            if count & 0x80000000:
+                count -= 1 << 32
+            if count < 0:
+                count = -count
+            if count > threshold:
                 acc[axis] &= 0xFFFF
                 self.filament_slip = True
                 if self.what == LOADING:
@@ -300,7 +307,7 @@ class Motion:
 
     # ------------------------------------------------------ queueing moves
     def add_block(self, feed_rate: float, speed_limit: float, check_z_top: bool,
-                  moves: list[float]) -> Waits:
+                  moves: vec[float]) -> Waits:
         """add_block_to_buffer: queue `moves` (mm per axis, float32) and wait until the
         queue is ready for more; `moves` is rewritten with the distances the steps make
         (all 0 when the move is shorter than a step: it is absorbed into the next)."""
@@ -309,14 +316,14 @@ class Motion:
                 yield READY_WAIT
 
     def queue_block(self, feed_rate: float, speed_limit: float, check_z_top: bool,
-                    moves: list[float]) -> bool:
+                    moves: vec[float]) -> bool:
         """add_block_to_buffer up to its wait for room (see add_block): whether a block
         was queued (if not, the move was shorter than a step and `moves` is all 0).
         A caller that queues blocks on every pass waits for room itself, sparing a
         generator per block."""
         parameters = self.fw.parameters
-        spu: list[float] = parameters.axis_list("steps_per_unit")
-        steps = [0] * 6
+        spu = parameters.axis_floats("steps_per_unit")
+        steps = vec[i64]([0] * 6)
         length = 0
         # An axis that does not move costs nothing below: every float32() of a zero is
         # zero, and max() with a zero leaves the running value as it was. (Each list item
@@ -339,7 +346,7 @@ class Motion:
         blk.end_speed = 0
         blk.check_z_top = check_z_top
         if feed_rate > 0.0:
-            max_speed: list[float] = parameters.axis_list("max_speed")
+            max_speed = parameters.axis_floats("max_speed")
             total = 0.0
             for i in range(6):  # (sum() and math.isfinite() are generic calls compiled)
                 total += moves[i]
@@ -371,7 +378,7 @@ class Motion:
             blk.speed = max(MIN_SPEED, to_ushort(speed))
         else:
             blk.speed = MIN_SPEED
-        movers = []
+        movers = vec[i64]()
         exact = length < 16777216  # whole numbers below 2**24 are floats as they are
         f32_length = float(length) if exact else float32(length)
         incs = blk.inc
@@ -390,16 +397,16 @@ class Motion:
                 product = float32(float32(inc) * f32_length)
                 moves[i] = float32(div(math.floor((product + 32768.0) / 65536.0), per_unit))
                 if inc:
-                    movers.append(i)
+                    movers = append(movers, i)
             incs[i] = inc
             change: i64 = inc - before[i]
             if change < 0:
                 change = -change
             if change > turn:
                 turn = change
-        blk.movers = tuple(movers)
+        blk.movers = movers
         blk.turn = turn
-        if movers:  # make_motor_active() for each axis that moves, once for them all
+        if len(movers):  # make_motor_active() for each axis that moves, once for them all
             self.machine.motors_on = True
         if incs[B]:
             self.fw.heaters.set_head_power(True)
@@ -434,8 +441,8 @@ class Motion:
         return math.floor(v) if -2147483648.0 < v < 2147483648.0 else floor_long(v)
 
     @staticmethod
-    def _speed_exactly(length: int, feed_rate: float, speed_limit: float, moves: list[float],
-                       max_speed: list[float]) -> float:
+    def _speed_exactly(length: int, feed_rate: float, speed_limit: float, moves: vec[float],
+                       max_speed: vec[float]) -> float:
         """The block's speed before the cast, in add_block_to_buffer's own order, for
         when a number is zero, negative, infinite or NaN (a 0/0 or a NaN met by the
         firmware's max() can decide the result, and a zero's sign can)."""
@@ -789,8 +796,8 @@ class Motion:
         self.interrupts += k
 
     # ------------------------------------------------- switch-bound moves
-    def _single(self, axis: int, distance: float) -> list[float]:
-        moves = [0.0] * 6
+    def _single(self, axis: int, distance: float) -> vec[float]:
+        moves = vec[float]([0.0] * 6)
         moves[axis] = float32(distance)
         return moves
 

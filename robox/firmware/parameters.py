@@ -22,6 +22,7 @@ from robox.formats.firmware import (
     PARAMETER_PAGES,
     UNIQUE_ID_PAGE,
 )
+from robox.packed import vec
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
@@ -82,6 +83,7 @@ class Parameters:
         self.fw = firmware
         self.values: dict[str, Any] = {}
         self.lists: dict[str, list] = {}  # axis_list()'s, made at first use
+        self.floats: dict[str, vec[float]] = {}  # axis_floats()'s, likewise
 
     def initialise(self) -> None:
         self.defaults()
@@ -98,6 +100,7 @@ class Parameters:
         self.values.update({name: dict(value) if isinstance(value, dict) else value
                             for name, value in _FACTORY.items()})
         self.lists.clear()
+        self.floats.clear()
 
     def axis_list(self, name: str) -> list:
         """A per-axis parameter as a list in axis order (X Y Z E D B), for code that
@@ -108,11 +111,21 @@ class Parameters:
             got = self.lists[name] = [self.values[name][axis] for axis in AXES]
         return got
 
+    def axis_floats(self, name: str) -> vec[float]:
+        """axis_list() of a parameter whose values are numbers, as floats in a packed
+        vector (compiled, read without unboxing: robox.packed)."""
+        got = self.floats.get(name)
+        if got is None:
+            values = self.values[name]
+            got = self.floats[name] = vec[float]([float(values[axis]) for axis in AXES])
+        return got
+
     # ------------------------------------------------------------ G-codes
     def set_from_line(self, code: int, line: Line) -> None:
         """A parameter-setting M-code, as gcode.c handles each."""
         v = self.values
         self.lists.clear()
+        self.floats.clear()
         per_axis = {92: ("steps_per_unit", line.float), 202: ("max_speed", line.float),
                     510: ("invert_direction", line.bool), 520: ("travel", line.float),
                     526: ("invert_switch", line.bool), 527: ("home_distance", line.float)}

@@ -29,6 +29,7 @@ from robox.firmware.motion import FLT_MAX, READY_WAIT
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, X, Y, Z
+from robox.packed import vec
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
@@ -61,7 +62,11 @@ REELS: Final = (EepromIndex.REEL0, EepromIndex.REEL1)
 class Position:
     #: Called with each queued move's per-axis distances once the position has taken
     #: them in (an observer outside the firmware, such as `simulate`; None: nobody).
-    on_move: Callable[[list[float]], None] | None
+    on_move: Callable[[vec[float]], None] | None
+    # per axis (X Y Z E D B): packed vectors compiled (robox.packed), lists otherwise
+    destination: vec[float]
+    position: vec[float]
+    tool_offset: vec[float]
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
@@ -80,9 +85,9 @@ class Position:
         self.unpark_feed_rate = 0.0
         self.z_made_safe = False
         self.homing_done = [False] * 6
-        self.destination = [0.0] * 6
-        self.position = [0.0] * 6
-        self.tool_offset = [0.0] * 6
+        self.destination = vec[float]([0.0] * 6)
+        self.position = vec[float]([0.0] * 6)
+        self.tool_offset = vec[float]([0.0] * 6)
         self.unpark_destination = [0.0] * 6
         self.home_delta = [0.0] * 6
         self.diameter = [DEFAULT_DIAMETER, DEFAULT_DIAMETER]
@@ -137,19 +142,19 @@ class Position:
         tool offsets, levelling), wait for room in the queue, then book the distances
         the steps really make. Returns whether a block was queued (False: every axis was
         within half a step)."""
-        moves = [0.0] * 6
+        moves = vec[float]([0.0] * 6)
         if self._queue_move(feed_rate, speed_limit, moves):
             motion = self.motion
             while not motion.ready_for_more():
                 yield READY_WAIT
         return self._book(moves)
 
-    def _queue_move(self, feed_rate: float, speed_limit: float, moves: list[float]) -> bool:
+    def _queue_move(self, feed_rate: float, speed_limit: float, moves: vec[float]) -> bool:
         """do_move up to add_block_to_buffer's wait for room: `moves` gets the distances
         the steps make; whether a block was queued."""
         pa = self.pa
         pos, dest, off = self.position, self.destination, self.tool_offset
-        travel: list[float] = self.fw.parameters.axis_list("travel")
+        travel = self.fw.parameters.axis_floats("travel")
         for i in range(X, Y + 1):  # (a range: compiled, a tuple's iterator is generic)
             if self.homing_done[i]:
                 target = cmax(0.0, cmin(travel[i], f32(dest[i] + off[i])))
@@ -168,7 +173,7 @@ class Position:
         moves[B] = f32(opening - pos[B]) if self.homing_done[B] else 0.0
         return self.motion.queue_block(feed_rate, speed_limit, check_z_top, moves)
 
-    def _book(self, moves: list[float]) -> bool:
+    def _book(self, moves: vec[float]) -> bool:
         """After the wait: the position moves on by what the steps make."""
         pos = self.position
         for i in range(6):
@@ -182,7 +187,7 @@ class Position:
                 break
         return moved
 
-    def _quiet_segments(self, step: list[float], left: int) -> int:
+    def _quiet_segments(self, step: vec[float], left: int) -> int:
         """After a segment that queued nothing: how many of the next `left` segments
         (each adding `step` to the destinations) queue nothing too.
 
@@ -230,7 +235,7 @@ class Position:
 
     def move(self, line: Line, rapid: bool = False) -> Waits:
         """G0/G1 (do_g0_g1)."""
-        moves = [0.0] * 6
+        moves = vec[float]([0.0] * 6)
         has_xyz = has_edb = False
         distance = 0.0
         dest = self.destination
@@ -270,7 +275,7 @@ class Position:
             for i in range(6):
                 dest[i] = f32(dest[i] + moves[i])
             left -= 1
-            step = [0.0] * 6
+            step = vec[float]([0.0] * 6)
             # do_move, written out: one generator for the whole line, not one per segment
             if rapid:
                 queued = self._queue_move(FLT_MAX, FLT_MAX, step)
@@ -419,7 +424,7 @@ class Position:
             yield from heaters.wait_for_bed_cool()
             heaters.force_ambient_fan = False
         if not self.fw.job.abort_flag:
-            moves = [0.0] * 6
+            moves = vec[float]([0.0] * 6)
             moves[Y] = f32(self.pa["cover_unlock_y"] - self.position[Y])
             yield from self.motion.add_block(FLT_MAX, FLT_MAX, False, moves)
             self.position[Y] = f32(self.position[Y] + moves[Y])

@@ -24,7 +24,7 @@ import contextlib
 import math
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -87,7 +87,7 @@ class Watch:
         if not lines or lines[-1] != line:
             lines.append(line)
 
-    def on_move(self, moves: list[float]) -> None:
+    def on_move(self, moves: Sequence[float]) -> None:
         p = self.fw.position
         line = self.fw.job.line_number
         dest, off, homed = p.destination, p.tool_offset, p.homing_done

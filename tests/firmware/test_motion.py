@@ -13,6 +13,7 @@ from robox.firmware import motion as motion_module
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import D, E
 from robox.native import compiled_modules
+from robox.packed import vec
 from tests.firmware.wire import job_text
 
 SPU = {"X": 133.7, "Y": 133.7, "Z": 6400.0, "E": 747.0, "B": 2500.0}
@@ -60,7 +61,7 @@ def test_a_block_takes_the_time_the_interrupts_ramp_gives(wire, acceleration):
     """add_block_to_buffer's length and speed, TC0_IrqHandler's ramp (M201 S)."""
     run(wire, f"M201 S{acceleration}")
     motion = wire.fw.motion
-    moves = [1.5, 0.0, 0.0, 0.0, 0.0, 0.0]
+    moves = vec[float]([1.5, 0.0, 0.0, 0.0, 0.0, 0.0])  # a list in pure Python
     queued = motion.add_block(10.0, motion_module.FLT_MAX, False, moves)
     next(queued)  # queued; the foreground now waits for room
     length = math.floor(f32(1.5 * f32(133.7)) + 0.5)
@@ -519,7 +520,7 @@ def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end
     maxp = (0x10000 // math.isqrt(a << 3)) & 0xFFFF
     motion.max_period_for_ramping = maxp
     blk = motion_module.Block()
-    blk.length, blk.speed, blk.end_speed, blk.movers = length, speed, end_speed, ()
+    blk.length, blk.speed, blk.end_speed = length, speed, end_speed  # (no axis moves)
     s = min(start, speed) << 12
     motion.speed_x4k, motion.timer_period = s, ((0x10000 << 12) // s) & 0xFFFF
     motion.next_tick, motion.active = 0, True

@@ -122,3 +122,24 @@ def test_the_native_float_rounding_is_the_struct_modules():
 
     cases = _float_cases()
     assert [key(native_f32(v)) for v in cases] == [key(struct_f32(v)) for v in cases]
+
+
+def test_packed_vectors_are_librts_where_compiled_and_lists_otherwise():
+    """robox.packed tells the two builds apart at run time; the firmware's per-axis
+    numbers are librt's packed vectors only where its modules run compiled."""
+    from robox import packed
+    from robox.firmware.carith import i64
+
+    compiled = "robox.packed" in native.compiled_modules()
+    assert packed.COMPILED == compiled
+    floats = packed.vec[float]([0.5, -0.0, 1e300, float("inf")])
+    ints = packed.append(packed.vec[i64]([1, -(2**40)]), 7)
+    assert [float(x) for x in floats] == [0.5, -0.0, 1e300, float("inf")]
+    assert str(floats[1]) == "-0.0"  # a zero's sign is kept
+    assert [int(x) for x in ints] == [1, -(2**40), 7]
+    floats[2] = 2.25  # written in place, as the firmware's arrays are
+    assert floats[2] == 2.25
+    if compiled:
+        assert type(floats).__name__ == "vec[float]" and type(ints).__name__ == "vec[i64]"
+    else:
+        assert type(floats) is list and type(ints) is list

@@ -1,0 +1,44 @@
+"""Fixed-size vectors of native numbers for the compiled core; plain lists in pure Python.
+
+The firmware keeps its per-axis numbers (accumulators, increments, positions) in C
+arrays. Compiled (robox.native), `vec[i64]` and `vec[float]` are mypyc's packed
+vectors (librt.vecs): reading or writing an item is a native load or store, where a
+list item is a boxed int or float that is made, checked and freed on every access.
+In pure Python a packed vector is only slower than a list, so there `vec[T](items)`
+makes a list; the code that uses them is the same either way.
+
+setup.py has mypyc take `COMPILED` as always true, so the compiled modules are typed
+for librt's vectors; at run time the test below tells the two builds apart (a compiled
+module's functions are not Python function objects).
+"""
+
+from __future__ import annotations
+
+import types
+from typing import Any
+
+
+def _probe() -> None:
+    """A function whose type says whether this module runs compiled."""
+
+
+COMPILED = not isinstance(_probe, types.FunctionType)
+
+if COMPILED:
+    from librt.vecs import append, vec
+else:
+
+    class _Lists:
+        """`vec[T](items)` in pure Python: a list of the items."""
+
+        def __getitem__(self, kind: Any) -> type[list]:
+            return list
+
+    vec: Any = _Lists()
+
+    def append(v: list, item: Any) -> list:  # type: ignore[misc]
+        """librt.vecs.append(v, item) (which returns the vector, perhaps a new one)."""
+        v.append(item)
+        return v
+
+__all__ = ["COMPILED", "append", "vec"]
