@@ -131,7 +131,7 @@ def test_packed_vectors_are_librts_where_compiled_and_lists_otherwise():
     from robox.firmware.carith import i64
 
     compiled = "robox.packed" in native.compiled_modules()
-    assert packed.COMPILED == compiled
+    assert compiled == packed.COMPILED
     floats = packed.vec[float]([0.5, -0.0, 1e300, float("inf")])
     ints = packed.append(packed.vec[i64]([1, -(2**40)]), 7)
     assert [float(x) for x in floats] == [0.5, -0.0, 1e300, float("inf")]
