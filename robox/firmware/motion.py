@@ -123,6 +123,7 @@ class Motion:
     def initialise(self) -> None:
         fw = self.fw
         self.machine = fw.hw.machine
+        self.parameters = fw.parameters
         self.pa: dict[str, Any] = fw.parameters.values
         self.set_acceleration(None)
         self.speed_x4k = MIN_SPEED << 12
@@ -165,6 +166,7 @@ class Motion:
                 pa["acceleration"] = max(1, min(255, line.uint("S")))
             if line.has("T"):
                 pa["allowable_error"] = max(1, min(255, line.uint("T")))
+            self.parameters.changed()
         a = pa["acceleration"]
         self.max_period_for_ramping = (0x10000 // math.isqrt(a << 3)) & 0xFFFF
         self.max_speed_step = _max_speed_step(a, pa["allowable_error"])
@@ -182,7 +184,7 @@ class Motion:
     def ready_for_more(self) -> bool:
         """is_buffer_ready_for_more: not full, and the steps queued are fewer than the
         newest block's speed needs to stop plus a 0.1 s margin."""
-        n = self._counts_until_ready(self.pa["acceleration"])
+        n = self._counts_until_ready(self.parameters.acceleration)
         return n is not None and n == 0  # (compiled: a native comparison, not a generic one)
 
     def aborting(self) -> bool:
@@ -415,7 +417,7 @@ class Motion:
         b = self.buffer_in
         self.buffer_in = (self.buffer_in + 1) & MASK
         self.queued_length += length
-        a: i64 = self.pa["acceleration"]  # (read once: nothing here changes it)
+        a: i64 = self.parameters.acceleration  # (read once: nothing here changes it)
         while n > 0:
             prev = (b - 1) & MASK
             end_speed = self._end_speed(self.block[b], a)
@@ -478,7 +480,7 @@ class Motion:
         limit = self.tick_of(self.fw.clock.now)
         # the acceleration read once for the interrupts taken here together (no G-code
         # runs between them to change it)
-        a: i64 = self.pa["acceleration"]
+        a: i64 = self.parameters.acceleration
         while self.next_tick <= limit:
             self._advance(limit, None, a)
 
@@ -496,7 +498,7 @@ class Motion:
         if it already is), or None if it did not happen by `until`."""
         limit = self.tick_of(until)
         last = self.fw.clock.now
-        a: i64 = self.pa["acceleration"]  # (as catch_up() reads it)
+        a: i64 = self.parameters.acceleration  # (as catch_up() reads it)
         ready = kind == "ready"  # (compared once, not at every run of interrupts)
         while True:
             cap = self._counts_until_ready(a) if ready else (0 if self.empty() else None)
@@ -580,7 +582,7 @@ class Motion:
             acc[i] = w
             if (v ^ w) & 0xFFFF0000:
                 m.step(i, 1 if inc[i] > 0 else -1)
-        a: i64 = self.pa["acceleration"]
+        a: i64 = self.parameters.acceleration
         v = isqrt32(((min(0x00800000, blk.length - 1) << 1) * a
                      + ((blk.end_speed * blk.end_speed) >> 4)) & U32)
         s = self.speed_x4k + min(self.timer_period, self.max_period_for_ramping) * a
@@ -605,7 +607,7 @@ class Motion:
         Stops once the speed holds at the block's cruise speed or the floor (a run may
         follow), at the block's end, at `limit` or after `cap` interrupts; a speed that
         holds while the block slows down (the square root's steps) runs on."""
-        a: i64 = self.pa["acceleration"]
+        a: i64 = self.parameters.acceleration
         c: i64 = (blk.end_speed * blk.end_speed) >> 4
         top: i64 = blk.speed << 12
         maxp: i64 = self.max_period_for_ramping

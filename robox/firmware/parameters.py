@@ -12,7 +12,7 @@ import struct
 from typing import TYPE_CHECKING, Any, Final
 
 from robox.firmware.carith import f32 as float32
-from robox.firmware.carith import to_uchar
+from robox.firmware.carith import i64, to_uchar
 from robox.firmware.cline import Line
 from robox.formats import float8
 from robox.formats.firmware import (
@@ -79,9 +79,14 @@ class Parameters:
     """The firmware's parameters (`pa`): factory settings, the G-codes that change them,
     M500/M501/M502 and M503's text, byte for byte."""
 
+    #: values["acceleration"], as a native integer for the step interrupt, which reads it
+    #: at every run of interrupts (kept by changed())
+    acceleration: i64
+
     def __init__(self, firmware: Firmware):
         self.fw = firmware
         self.values: dict[str, Any] = {}
+        self.acceleration = 0
         self.lists: dict[str, list] = {}  # axis_list()'s, made at first use
         self.floats: dict[str, vec[float]] = {}  # axis_floats()'s, likewise
 
@@ -99,8 +104,14 @@ class Parameters:
         self.values.clear()
         self.values.update({name: dict(value) if isinstance(value, dict) else value
                             for name, value in _FACTORY.items()})
+        self.changed()
+
+    def changed(self) -> None:
+        """After `values` changed: what is kept from them made again (every change goes
+        through set_from_line or defaults, or is M201 through Motion.set_acceleration)."""
         self.lists.clear()
         self.floats.clear()
+        self.acceleration = self.values["acceleration"]
 
     def axis_list(self, name: str) -> list:
         """A per-axis parameter as a list in axis order (X Y Z E D B), for code that
@@ -123,9 +134,13 @@ class Parameters:
     # ------------------------------------------------------------ G-codes
     def set_from_line(self, code: int, line: Line) -> None:
         """A parameter-setting M-code, as gcode.c handles each."""
+        try:
+            self._set_from_line(code, line)
+        finally:
+            self.changed()
+
+    def _set_from_line(self, code: int, line: Line) -> None:
         v = self.values
-        self.lists.clear()
-        self.floats.clear()
         per_axis = {92: ("steps_per_unit", line.float), 202: ("max_speed", line.float),
                     510: ("invert_direction", line.bool), 520: ("travel", line.float),
                     526: ("invert_switch", line.bool), 527: ("home_distance", line.float)}

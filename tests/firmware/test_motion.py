@@ -517,6 +517,7 @@ def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end
     from tests.firmware.wire import Wire
     motion = _ramp_motion.setdefault("m", Wire().fw.motion)
     motion.pa["acceleration"] = a
+    motion.parameters.changed()  # as M201 would
     maxp = (0x10000 // math.isqrt(a << 3)) & 0xFFFF
     motion.max_period_for_ramping = maxp
     blk = motion_module.Block()
@@ -536,3 +537,23 @@ def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end
 
 
 _ramp_motion: dict = {}
+
+
+def test_the_interrupts_acceleration_follows_every_change_of_the_parameter(wire):
+    """The step interrupt reads pa.acceleration at every run of interrupts; the model
+    keeps it as a native integer, which must follow each way the parameter changes:
+    M201 (through motion), M502 (factory settings), M501 (the saved ones)."""
+    motion = wire.fw.motion
+
+    def seen() -> tuple[int, int]:
+        return motion.parameters.acceleration, motion.pa["acceleration"]
+
+    factory = seen()[1]
+    run(wire, "M201 S7")
+    assert seen() == (7, 7)
+    run(wire, "M500", "M201 S3")
+    assert seen() == (3, 3)
+    run(wire, "M501")  # the saved 7
+    assert seen() == (7, 7)
+    run(wire, "M502")
+    assert seen() == (factory, factory) and factory != 7
