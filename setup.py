@@ -27,6 +27,7 @@ NATIVE_MODULES = [
     "robox/hardware/clock.py",
     "robox/hardware/usb.py",
     "robox/hardware/eeprom.py",
+    "robox/hardware/faults.py",
     "robox/formats/float8.py",
     "robox/gcode/translate.py",
     "robox/gcode/text.py",

@@ -29,6 +29,7 @@ MODULES = (
     "robox.hardware.clock",
     "robox.hardware.usb",
     "robox.hardware.eeprom",
+    "robox.hardware.faults",
     "robox.formats.float8",
     "robox.gcode.translate",
     "robox.gcode.text",

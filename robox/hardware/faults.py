@@ -8,6 +8,14 @@ a read that fails, a card that is gone.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
+
+try:  # compiled (robox.native), a class that tests may extend says so
+    from mypy_extensions import mypyc_attr
+except ImportError:  # pure Python: no such thing to say
+
+    def mypyc_attr(*_args: Any, **_flags: Any) -> Any:  # type: ignore[misc]
+        return lambda cls: cls
 
 
 @dataclass
@@ -106,6 +114,7 @@ class Landing:
         return None
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # a recorder of the writes extends it
 @dataclass
 class PowerPlan:
     """The printer's supply, shared by every nonvolatile medium (card, EEPROM chips,
