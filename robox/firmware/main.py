@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Final
 
+from robox.firmware.carith import i64
 from robox.firmware.command import Command
 from robox.firmware.eeprom import Eeproms
 from robox.firmware.error_flags import ErrorFlags
@@ -258,19 +259,21 @@ class Firmware:
             if when is None:
                 self._may_step = may_step
                 return PASS_S, most
-            tick, t, n = motion.tick_of(when), now, 0
+            tick = motion.tick_of(when)
+            t = now
+            k: i64 = 0  # (native integers: compiled, the count below is a plain add)
             # the first pass that sees it, the clock added up as it will be; the passes
             # well short of it are only added up (a pass is 3000 ticks: two short of
             # the quotient is short of it, whatever the sums' rounding)
-            short = min(most, int((when - now) / PASS_S)) - 2
-            while n < short:
+            short: i64 = min(most, int((when - now) / PASS_S)) - 2
+            while k < short:
                 t += PASS_S
-                n += 1
+                k += 1
             while True:
                 t += PASS_S
-                n += 1
-                if motion.tick_of(t) >= tick or n >= most:
-                    return PASS_S, n
+                k += 1
+                if motion.tick_of(t) >= tick or k >= most:
+                    return PASS_S, k
         return max(PASS_S, horizon - now), 1
 
     def run_pass(self, step: float | None = None, passes: int = 1) -> None:
