@@ -178,7 +178,7 @@ class Command:
     def _pronterface(self) -> int:
         from robox.firmware.gcode import line_length
 
-        n = line_length(self.buffer)
+        n = line_length(bytes(self.buffer))
         if n:
             self._run_line(bytes(self.buffer[:n]), self._send_text)
         return n

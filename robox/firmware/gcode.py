@@ -76,27 +76,19 @@ def wait_for(condition, wait: Wait = NEXT_PASS) -> Waits:
         yield wait
 
 
-def line_length(buffer: bytearray) -> int:
+def line_length(buffer: bytes) -> int:
     """The firmware's get_gcode_line_length: 0 while the first line has no CR or LF
     (a NUL ends the string); otherwise its length with its terminator (CR LF or LF CR
     count once) and any blanks after it."""
+    # byte by byte (compiled, a native loop over the line's few dozen bytes, where a
+    # method call or a search of the whole buffer costs several times as much)
     n = len(buffer)
-    if n == 0:
-        return 0
-    # the first CR, LF or NUL. A job's lines end in CR alone: one search finds it, once
-    # two quick looks (`in`: compiled, no method call) see no LF or NUL anywhere
-    i = buffer.find(13)
-    if 10 in buffer or 0 in buffer:
-        if i < 0:
-            i = n
-        j = buffer.find(10, 0, i)
-        if j >= 0:
-            i = j
-        j = buffer.find(0, 0, i)
-        if j >= 0:
-            i = j
-    elif i < 0:
-        return 0
+    i = 0
+    while i < n:
+        c = buffer[i]
+        if c == 13 or c == 10 or c == 0:  # the first CR, LF or NUL
+            break
+        i += 1
     if i >= n or buffer[i] == 0:
         return 0
     nxt = buffer[i + 1] if i + 1 < n else 0
@@ -122,8 +114,10 @@ class Job:
 
     def initialise(self) -> None:
         now = self.fw.clock.now
-        self.execute_buffer = bytearray()
-        self.job_buffer = bytearray()
+        # the firmware's two line buffers (bytes, made anew as they change: compiled,
+        # read byte by byte natively, where a bytearray's items are generic lookups)
+        self.execute_buffer = b""
+        self.job_buffer = b""
         self.line_number = 0
         self.abort_flag = False
         self.pause = 0  # 0 running, 1 paused, 2 "selfie" pause
@@ -163,7 +157,7 @@ class Job:
         """The firmware's gcode_handler on `text`: the first complete line runs at once and
         its response (ending in ok) is the generator's return value; b"" if `text` holds
         no complete line."""
-        if line_length(bytearray(text)) == 0:
+        if line_length(text) == 0:
             return b""
         return (yield from self.process_line(text))
 
@@ -174,7 +168,7 @@ class Job:
         self.pause = 0
         self.parked = False
         self.running = True
-        self.job_buffer.clear()
+        self.job_buffer = b""
         self.idle_since = self.fw.clock.now
         self.fw.file_system.start_read_file(file_id)
         self.fw.events.append(("job started", self.job_id))
@@ -191,8 +185,8 @@ class Job:
     def abort(self) -> None:
         """Stop reading and empty both buffers; the rest happens once motion has stopped."""
         self.abort_flag = True
-        self.job_buffer.clear()
-        self.execute_buffer.clear()
+        self.job_buffer = b""
+        self.execute_buffer = b""
         self.fw.file_system.close()
 
     # ------------------------------------------------------------ status
@@ -263,7 +257,7 @@ class Job:
             return None
         n = line_length(self.execute_buffer)
         if n:
-            return self._buffer_line(self.execute_buffer, n)
+            return self._buffer_line(False, n)
         if not self.running:
             return None
         if self.pause:
@@ -272,7 +266,7 @@ class Job:
             return self._unpark()
         if (n := line_length(self.job_buffer)) > 0:
             self.line_number += 1
-            return self._buffer_line(self.job_buffer, n)
+            return self._buffer_line(True, n)
         if len(self.job_buffer) >= LINE_LIMIT:
             fw.errors.set(ErrorBit.GCODE_LINE_TOO_LONG)
             self.abort()
@@ -375,7 +369,7 @@ class Job:
         fw.heaters.turn_off()
         self.pause = 0
         self.running = False
-        self.job_buffer.clear()
+        self.job_buffer = b""
         self.line_number = 0
         fw.heaters.targets_from_reel()
         fw.position.filament_info_from_reel()
@@ -396,14 +390,21 @@ class Job:
             self.current = None
         self.waiting = waiting
 
-    def _buffer_line(self, buffer: bytearray, n: int) -> Waits:
+    def _buffer_line(self, job: bool, n: int) -> Waits:
+        """The first line (`n` bytes) of the job buffer or of the execute buffer, run and
+        then taken off the buffer as it is by then."""
         # (a buffered line's response goes nowhere: its routine runs one generator down
         # from here, not inside process_line's, where most passes resume it)
-        step = self._code_step(bytes(buffer[:n]))
+        step = self._code_step((self.job_buffer if job else self.execute_buffer)[:n])
         if step is not None:
             yield from step
-        if len(buffer) >= n:  # an abort may have emptied it meanwhile
-            del buffer[:n]
+        # an abort may have emptied the buffer meanwhile, and a host's lines may have
+        # joined the execute buffer
+        if job:
+            if len(self.job_buffer) >= n:
+                self.job_buffer = self.job_buffer[n:]
+        elif len(self.execute_buffer) >= n:
+            self.execute_buffer = self.execute_buffer[n:]
         self.idle_since = self.fw.clock.now
 
     def _park(self) -> Waits:

@@ -26,7 +26,7 @@ def waiting_for_more(wire: Wire) -> bool:
     if command.deaf:
         return True
     if not command.robox_mode:
-        return bool(buf) and line_length(command.buffer) == 0
+        return bool(buf) and line_length(buf) == 0
     if not buf or (buf[0] not in FIXED and buf[0] not in VARIABLE):
         return False
     if buf[0] in FIXED:

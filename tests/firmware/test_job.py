@@ -254,5 +254,4 @@ def c_line_length(buffer: bytes) -> int:
                                                            b"\t", b"M", b"\r\n", b"\n\r"]),
                                           max_size=12).map(b"".join))
 def test_line_length_is_the_firmwares(buffer):
-    # (over a bytearray, as the firmware's receive, execute and job buffers all are)
-    assert line_length(bytearray(buffer)) == c_line_length(buffer)
+    assert line_length(buffer) == c_line_length(buffer)
