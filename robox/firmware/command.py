@@ -79,7 +79,8 @@ def get_hex(field: bytes | bytearray) -> int:
 
 
 def put_hex(value: int, digits: int) -> bytes:
-    return f"{value & ((1 << 4 * digits) - 1):0{digits}x}".encode()
+    # (printf-style on bytes: compiled, no format-string parsing and no encoding)
+    return b"%0*x" % (digits, value & ((1 << 4 * digits) - 1))
 
 
 class Command:

@@ -40,8 +40,8 @@ def fits(value: float) -> bool:
 
 def encode(value: float, pad: bytes = b" ") -> bytes:
     """The 8 bytes of `value`: the first 8 characters of "%f", padded with `pad`."""
-    text = f"{value:f}"[:WIDTH].encode("ascii")
-    return text.ljust(WIDTH, pad)
+    # (printf-style on bytes: compiled, no format-string parsing and no encoding)
+    return (b"%f" % value)[:WIDTH].ljust(WIDTH, pad)
 
 
 def encode_checked(value: float, pad: bytes = b" ") -> bytes:

@@ -207,7 +207,8 @@ def _width(text: bytes) -> float | None:
 
 
 def _fmt(value: float) -> str:
-    text = f"{value:.5f}".rstrip("0").rstrip(".")
+    # (printf-style: compiled, the format string is not parsed at every call)
+    text = ("%.5f" % value).rstrip("0").rstrip(".")  # noqa: UP031
     return "0" if text in ("-0", "") else text
 
 
