@@ -37,6 +37,9 @@ IDLE_PAUSE_S: Final = 600.0
 IDLE_ABORT_S: Final = 3600.0
 SLIP_COUNT_DECAY_S: Final = 300.0
 REPORTING: Final = {105, 111, 112, 113, 114, 115, 119, 503, 997, 999}
+#: builtins.next, held here: compiled, next() with a default is looked up in the
+#: builtins module at every call, a Final is a static
+_NEXT: Final = next
 
 
 class Wait:
@@ -385,7 +388,7 @@ class Job:
         assert step is not None
         # (a default, not StopIteration caught: a line's routine yields only Waits, and
         # compiled, an exception caught costs a traceback entry at every line's end)
-        waiting = next(step, None)
+        waiting = _NEXT(step, None)
         if waiting is None:
             self.current = None
         self.waiting = waiting
