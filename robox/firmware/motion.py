@@ -261,7 +261,7 @@ class Motion:
             if until_slip and self.filament_slip:
                 acc[axis] &= 0xFFFF
                 continue
-            count = acc[axis]  # the 32-bit accumulator as a signed long, its size
+            count = acc[axis]  # the 32-bit accumulator read as a signed long: its magnitude
             if count & 0x80000000:
                 count -= 1 << 32
             if count < 0:

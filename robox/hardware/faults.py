@@ -10,9 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-try:  # compiled (robox.native), a class that tests may extend says so
+try:  # mypyc's class options (robox.native: compiled, these classes are native)
     from mypy_extensions import mypyc_attr
-except ImportError:  # pure Python: no such thing to say
+except ImportError:  # (not installed: pure Python, where the options mean nothing)
 
     def mypyc_attr(*_args: Any, **_flags: Any) -> Any:  # type: ignore[misc]
         return lambda cls: cls
