@@ -41,6 +41,7 @@ from collections import Counter
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Final
 
 from robox.errors import UsageError
 from robox.gcode.text import code_part, words
@@ -188,14 +189,162 @@ def _number(text: str, what: str) -> float:
     return value
 
 
-def _with_axis(head: str, p: dict[str, str], letter: str, prefix: str) -> str:
-    """`head` with the axis word `letter` of a move (written `prefix` + value), checked
-    as a number; `head` as it is when the move has none."""
+# What each byte is to _plain_move(), in an order that makes its tests comparisons: a
+# digit, a sign, a point or any other byte that may stand in a value; then a letter, or
+# a byte that sends the line the general way (`(` starts a comment that code_part()
+# cuts; bytes beyond ASCII); then what ends a word: a blank (as bytes.split() and
+# words() see them), or the `;` that starts a comment
+_OTHER: Final = 0
+_DIGIT: Final = 1
+_SIGN: Final = 2
+_POINT: Final = 3
+_LETTER: Final = 4
+_ASIDE: Final = 5
+_BLANK: Final = 6
+_SEMICOLON: Final = 7
+_KINDS: Final = bytes(
+    _BLANK if c == 32 or 9 <= c <= 13 or 28 <= c <= 31
+    else _LETTER if 65 <= c <= 90 or 97 <= c <= 122
+    else _DIGIT if 48 <= c <= 57
+    else _SIGN if c in (43, 45) else _POINT if c == 46 else _SEMICOLON if c == 59
+    else _ASIDE if c == 40 or c >= 128 else _OTHER
+    for c in range(256))
+
+# a move as _plain_move() reads it: the code, the line's head (the code and its X, Y
+# and Z words, in that order), and the E and F values
+PlainMove = tuple[bytes, bytes, bytes | None, bytes | None]
+
+
+def _plain_number(raw: bytes, start: int, end: int) -> bool:
+    """Whether raw[start:end] (no blank, letter or `;` in it) is a number float() reads,
+    or one of the empty forms _number() takes as 0; False may still be one (`1_0`),
+    left to the general way."""
+    i = start
+    if i < end and _KINDS[raw[i]] == _SIGN:
+        i += 1
+    digits = point = False
+    while i < end:
+        kind = _KINDS[raw[i]]
+        if kind == _DIGIT:
+            digits = True
+        elif kind == _POINT and not point:
+            point = True
+        else:
+            return False
+        i += 1
+    return digits or end - start <= 1
+
+
+def _plain_move(raw: bytes) -> PlainMove | None:
+    """A slicer's G0 or G1 line as the general way (code_part(), words(), _move()'s
+    checks) reads it, in one pass over its bytes with no list, dict or text made:
+    nearly every line of a slice is one. None for any other line, and for a move the
+    general way should read (and perhaps refuse): words run together or with letters
+    in their values, a `(` comment, bytes beyond ASCII before the `;`, a B or D word, an
+    X, Y or Z that is not a plain number."""
+    n = len(raw)
+    i = 0
+    while i < n and _KINDS[raw[i]] == _BLANK:
+        i += 1
+    if i + 2 > n or raw[i] | 0x20 != 0x67 or (raw[i + 1] != 0x31 and raw[i + 1] != 0x30):
+        return None  # neither G0 nor G1 (nor g0, g1)
+    first = i
+    code = b"G1" if raw[i + 1] == 0x31 else b"G0"
+    i += 2
+    # Whether the head stands in the line as the job writes it (the code, then its X, Y
+    # and Z words in that order, each after one space, before any other word), and
+    # where it ends there: then it is a slice of the line.
+    tidy = raw[first] == 0x47
+    last_axis = 0  # 1 X, 2 Y, 3 Z; 4 once another word came
+    head_end = i
+    # where each word's value starts and ends (a later word of a letter replaces it)
+    x0 = x1 = y0 = y1 = z0 = z1 = e0 = e1 = f0 = f1 = -1
+    while True:
+        if i < n and _KINDS[raw[i]] < _BLANK:
+            return None  # the code runs on (G10, G1X5: the general way)
+        word_end = i
+        while i < n and _KINDS[raw[i]] == _BLANK:
+            i += 1
+        if i == n or raw[i] == 0x3B:  # the end, or a comment
+            break
+        letter = raw[i]
+        kind = _KINDS[letter]
+        if kind == _ASIDE:
+            return None
+        upper = letter & 0xDF if kind == _LETTER else letter
+        i += 1
+        start = i
+        while i < n:
+            kind = _KINDS[raw[i]]
+            if kind >= _BLANK:
+                break
+            if kind >= _LETTER:
+                return None  # words run together, a ( comment, bytes beyond ASCII
+            i += 1
+        axis = 1 if upper == 0x58 else 2 if upper == 0x59 else 3 if upper == 0x5A else 0
+        if axis == 0:
+            if upper == 0x45:
+                e0, e1 = start, i
+            elif upper == 0x46:
+                f0, f1 = start, i
+            elif upper == 0x42 or upper == 0x44:
+                return None
+            last_axis = 4  # an axis word after this one: the head is not tidy
+            continue
+        if not _plain_number(raw, start, i):
+            return None
+        if axis == 1:
+            x0, x1 = start, i
+        elif axis == 2:
+            y0, y1 = start, i
+        else:
+            z0, z1 = start, i
+        if tidy and axis > last_axis and start - 2 == word_end and raw[word_end] == 0x20 \
+                and letter == upper:
+            last_axis = axis
+            head_end = i
+        else:
+            tidy = False
+    if tidy:
+        head = raw[first:head_end]
+    else:
+        head = code
+        if x0 >= 0:
+            head += b" X" + raw[x0:x1]
+        if y0 >= 0:
+            head += b" Y" + raw[y0:y1]
+        if z0 >= 0:
+            head += b" Z" + raw[z0:z1]
+    return code, head, raw[e0:e1] if e0 >= 0 else None, raw[f0:f1] if f0 >= 0 else None
+
+
+def _move_number(text: bytes, what: str) -> float:
+    """_number() of a move's word as _plain_move() gives it (bytes, no letters)."""
+    if len(text) < 2 and text in (b"", b"+", b"-", b"."):
+        return 0.0
+    try:
+        value = float(text)
+    except ValueError:
+        return _number(text.decode("ascii"), what)  # raises its error
+    if value - value != 0.0:
+        return _number(text.decode("ascii"), what)
+    return value
+
+
+def _encoded(p: dict[str, str], letter: str) -> bytes | None:
     v = p.get(letter)
-    if v is None:
-        return head
-    _number(v, letter)
-    return head + prefix + v
+    return None if v is None else v.encode("ascii")
+
+
+def _general_head(code: str, p: dict[str, str]) -> bytes:
+    """A move's head as _plain_move() gives it, from words(): each axis checked."""
+    head = code
+    for letter in "XYZ":
+        v = p.get(letter)
+        if v is not None:
+            _number(v, letter)
+            head += f" {letter}{v}"
+    return head.encode("ascii")
 
 
 def _width(text: bytes) -> float | None:
@@ -206,10 +355,17 @@ def _width(text: bytes) -> float | None:
     return value if math.isfinite(value) and value > 0 else None
 
 
-def _fmt(value: float) -> str:
-    # (printf-style: compiled, the format string is not parsed at every call)
-    text = ("%.5f" % value).rstrip("0").rstrip(".")  # noqa: UP031
-    return "0" if text in ("-0", "") else text
+def _fmt(value: float) -> bytes:
+    """`value` to 5 decimals, without trailing zeros (printf-style: compiled, the format
+    string is not parsed at every call; the zeros and the point cut in a native loop)."""
+    text = b"%.5f" % value
+    end = len(text)
+    while end > 1 and text[end - 1] == 0x30:
+        end -= 1
+    if text[end - 1] == 0x2E:
+        end -= 1
+    text = text[:end]
+    return b"0" if text == b"-0" or not text else text
 
 
 def sequence(name: str, kind: str) -> list[bytes]:
@@ -242,6 +398,10 @@ class Translator:
         self.s.nozzle = self.nozzle
         self.by_width = self.kind == "single" and options.nozzle is None
         self.width: float | None = None  # the slicer's extrusion width of this feature
+        d = options.filament_diameter
+        self.area_e = math.pi * d[0] * d[0] / 4.0  # mm2 of filament, for E and for D
+        self.area_d = math.pi * d[1] * d[1] / 4.0
+        self.volume_e = self.volume_d = 0.0  # mm3 extruded (see _book)
         if detected.robox:
             self.s.passthrough = True
             self.s.e_mode = "Robox (mm3, relative)"
@@ -269,8 +429,19 @@ class Translator:
         return self.nozzle or 0
 
     def _area(self) -> float:
-        d = self.o.filament_diameter[1 if self._extruder() == "D" else 0]
-        return math.pi * d * d / 4.0
+        return self.area_d if self._extruder() == "D" else self.area_e
+
+    def _book(self, extruder: str, volume: float) -> None:
+        """Add to an extruder's volume (native floats: compiled, no dict item is looked up
+        and boxed for every extrusion; run() puts them in the summary at its end)."""
+        if extruder == "D":
+            self.volume_d += volume
+        else:
+            self.volume_e += volume
+
+    def _booked(self) -> None:
+        self.s.volume_mm3["E"] = self.volume_e
+        self.s.volume_mm3["D"] = self.volume_d
 
     def _heater(self, tool: int | None) -> str:
         """The M104 letter of a slicer tool's nozzle heater."""
@@ -305,24 +476,31 @@ class Translator:
                 line = code_part(raw)
                 if line:
                     yield from self._count(self._expand(line))
+            self._booked()
             return
         if self.o.sequences:
             yield from self._count(self._sequence("start"))
         out: list[bytes] = []
+        line = b""
         for raw in lines:
             s.lines_in += 1
-            line = code_part(raw)
-            if not line:
-                if raw.startswith(b";WIDTH:") and self.by_width:
-                    self.width = _width(raw[7:])
-                continue
-            if not line.isascii():
-                raise UsageError(f"line {s.lines_in}: non-ASCII bytes outside a comment")
-            if line.startswith((b"Macro:", b"macro:")):
-                yield from self._count(self._expand(line))
-                continue
+            move = _plain_move(raw)  # nearly every line: a move read in one pass
+            if move is None:
+                line = code_part(raw)
+                if not line:
+                    if raw.startswith(b";WIDTH:") and self.by_width:
+                        self.width = _width(raw[7:])
+                    continue
+                if not line.isascii():
+                    raise UsageError(f"line {s.lines_in}: non-ASCII bytes outside a comment")
+                if line.startswith((b"Macro:", b"macro:")):
+                    yield from self._count(self._expand(line))
+                    continue
             try:
-                self._line(line, out)
+                if move is None:
+                    self._line(line, out)
+                else:
+                    self._move(move[0], move[1], move[2], move[3], out)
             except UsageError as e:
                 raise UsageError(f"line {s.lines_in}: {e}") from None
             s.lines_out += len(out)
@@ -332,6 +510,7 @@ class Translator:
         yield from self._count(out)
         if self.o.sequences:
             yield from self._count(self._sequence("end"))
+        self._booked()
 
     def _count(self, out: Iterable[bytes]) -> Iterator[bytes]:
         for line in out:
@@ -388,7 +567,7 @@ class Translator:
                 if axis in params:
                     value = _number(params[axis], axis)
                     if value > 0:
-                        self.s.volume_mm3[axis] += value
+                        self._book(axis, value)
 
     # ------------------------------------------------------------ one line
     def _line(self, line: bytes, out: list[bytes]) -> None:
@@ -400,7 +579,12 @@ class Translator:
         if code[1] == "0" and len(code) > 2:  # G01: leading zeros dropped
             code = code[0] + str(int(code[1:]))
         if code == "G1" or code == "G0":  # (two comparisons: compiled, no tuple searched)
-            self._move(code, p, out)
+            head = _general_head(code, p)
+            if "F" in p:  # checked before the B or D, as _move() checks it
+                _number(p["F"], "F")
+            if "B" in p or "D" in p:
+                raise UsageError(f"{code} with B or D: a Robox word in a slicer's file")
+            self._move(code.encode("ascii"), head, _encoded(p, "E"), _encoded(p, "F"), out)
         elif code == "G92":
             if "E" in p:
                 self.e_position[self.tool] = _number(p["E"], "G92 E")
@@ -441,13 +625,13 @@ class Translator:
         elif code in ("M140", "M190"):
             t = p.get("S") or p.get("R")
             if t is not None:
-                out.append(f"M140 S{_fmt(max(0.0, _number(t, code)))}".encode())
+                out.append(b"M140 S" + _fmt(max(0.0, _number(t, code))))
             if code == "M190" and (t is None or _number(t, code) > 0):
                 out.append(b"M190")
         elif code in ("M141", "M191"):
             t = p.get("S") or p.get("R")
             if t is not None:
-                out.append(f"M170 S{_fmt(max(0.0, _number(t, code)))}".encode())
+                out.append(b"M170 S" + _fmt(max(0.0, _number(t, code))))
         elif code == "M106":
             if _number(p.get("P", "0"), "M106 P") != 0:
                 self.s.dropped["M106 P (a second fan)"] += 1
@@ -475,7 +659,7 @@ class Translator:
         t = p.get("S") or p.get("R")
         if t is not None:
             value = max(0.0, _number(t, code))
-            out.append(f"M104 {self._heater(tool)}{_fmt(value)}".encode())
+            out.append(f"M104 {self._heater(tool)}".encode() + _fmt(value))
             if code == "M109" and value > 0:
                 out.append(b"M109")
         elif code == "M109":
@@ -501,23 +685,19 @@ class Translator:
             self.s.nozzle_changes += 1
             out.append(f"T{wanted}".encode())
 
-    def _move(self, code: str, p: dict[str, str], out: list[bytes]) -> None:
-        # the head of the line out: the code and the axes the slicer gave, each checked
-        # (one lookup an axis: compiled, no dict or iterator made for a move)
-        head = _with_axis(_with_axis(_with_axis(code, p, "X", " X"), p, "Y", " Y"), p, "Z", " Z")
+    def _move(self, code: bytes, head: bytes, e: bytes | None, f: bytes | None,
+              out: list[bytes]) -> None:
+        """A G0 or G1: its code, its head (the code and the axis words the slicer gave,
+        each checked) and its E and F values (see _plain_move)."""
         axes = len(head) > len(code)
-        v = p.get("F")
-        feed = "" if v is None else " F" + _fmt(_number(v, "F"))
-        if "B" in p or "D" in p:
-            raise UsageError(f"{code} with B or D: a Robox word in a slicer's file")
+        feed = b"" if f is None else b" F" + _fmt(_move_number(f, "F"))
         delta = 0.0
-        v = p.get("E")
-        if v is not None:
+        if e is not None:
             if not self._mode_seen:  # as the first extrusion reads it
                 self._mode_seen = True
                 self.s.e_mode = ("relative " if self.relative_e else "absolute ") + \
                     ("mm3" if self.volumetric else "mm")
-            value = _number(v, "E")
+            value = _move_number(e, "E")
             if self.relative_e:
                 delta = value
             else:
@@ -525,38 +705,39 @@ class Translator:
                 self.e_position[self.tool] = value
         volume = delta if self.volumetric else delta * self._area()
         extruder = self._extruder()
+        word = b" D" if extruder == "D" else b" E"
         if volume < -1e-9:  # a retraction: the valve closes instead
             self.s.retractions += 1
             self.retracted[self.tool] += -volume
             if self.kind == "plain":
-                out.append(f"G1 {extruder}{_fmt(volume)}{feed}".encode())
-                self.s.volume_mm3[extruder] += volume
+                out.append(b"G1" + word + _fmt(volume) + feed)
+                self._book(extruder, volume)
             else:
                 self._close(out)
             if axes:
-                out.append((head + feed).encode())
+                out.append(head + feed)
             elif feed:  # `G1 F2400` alone sets the feed rate for the moves after it
-                out.append(f"{code}{feed}".encode())
+                out.append(code + feed)
             return
         if volume > 1e-9 and self.retracted[self.tool] > 0:  # the unretraction
             owed = min(volume, self.retracted[self.tool])
             self.retracted[self.tool] -= owed
             if self.kind == "plain":
-                out.append(f"G1 {extruder}{_fmt(owed)}".encode())
-                self.s.volume_mm3[extruder] += owed
+                out.append(b"G1" + word + _fmt(owed))
+                self._book(extruder, owed)
             volume -= owed
         if volume > 1e-9:
             if self.width is not None:
                 self._nozzle_for_width(out)
             if self.kind != "plain" and not self.valve_open:
                 self._open(out)
-            self.s.volume_mm3[extruder] += volume
-            out.append(f"{head} {extruder}{_fmt(volume)}{feed}".encode())
+            self._book(extruder, volume)
+            out.append(head + word + _fmt(volume) + feed)
             return
         if axes:  # a travel: the valve stays as the slicer left it (closed by a retraction)
-            out.append((head + feed).encode())
+            out.append(head + feed)
         elif feed:
-            out.append(f"{code}{feed}".encode())
+            out.append(code + feed)
 
 
 def translate(lines: Iterable[bytes], options: Options, detected: Detected
