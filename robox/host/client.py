@@ -23,6 +23,7 @@ from robox.formats import eeprom as eeprom_format
 from robox.formats import float8
 from robox.formats.firmware import check_binary, to_sd_text
 from robox.formats.protocol import (
+    FIXED_REPLY_LENGTH,
     PAUSE_MASK_CONNECTED,
     REPLY_TO,
     ErrorBit,
@@ -192,7 +193,12 @@ class Printer:
             self.transport.write(frame, self.timeout)
             self.commands_sent += 1
             reply = b""
-            want = PACKET_SIZE
+            expected = REPLY_TO.get(frame[0], 0xE3)
+            # A report of fixed length in one read of whole packets (its last packet, a
+            # short one or the one that fills the buffer, ends the transfer); any other
+            # reply's first packet says its length, and the rest follows.
+            fixed = FIXED_REPLY_LENGTH.get(expected)
+            want = PACKET_SIZE if fixed is None else -(-fixed // PACKET_SIZE) * PACKET_SIZE
             while True:
                 reply += self.transport.read(want, self.timeout)
                 if is_text(reply):
@@ -209,7 +215,6 @@ class Printer:
                     # the rest in one read of whole packets: the reply's last packet, a
                     # short one or the one that fills the buffer, ends the transfer
                     want = -(-(length - len(reply)) // PACKET_SIZE) * PACKET_SIZE
-            expected = REPLY_TO.get(frame[0], 0xE3)
             if wire_log.isEnabledFor(logging.INFO):
                 log_exchange(frame, reply)
             if reply[0] != expected or len(reply) != length:

@@ -9,7 +9,7 @@ import usb.core
 from click.testing import CliRunner
 
 from robox.cli import cli
-from robox.formats.protocol import reply_length
+from robox.formats.protocol import FIXED_REPLY_LENGTH, reply_length
 from robox.gcode import prepare_job
 from robox.host.client import Printer, PrinterError, ProtocolError
 from robox.host.transport import Disconnected, NoReply, UsbTransport
@@ -274,7 +274,7 @@ class BulkPackets:
     def __init__(self, inner):
         self.inner = inner
         self.pending = b""
-        self.reads: list[int] = []
+        self.replies: list[list[int]] = []  # each reply's code and length, and its reads
 
     def write(self, data, timeout_ms=5000):
         self.inner.write(data, timeout_ms)
@@ -282,11 +282,11 @@ class BulkPackets:
         while reply_length(reply) is None or len(reply) < reply_length(reply):
             reply += self.inner.read(64, timeout_ms)
         self.pending = reply
-        self.reads.append(0)
+        self.replies.append([reply[0], len(reply), 0])
 
     def read(self, limit, timeout_ms=5000):
         assert limit % 64 == 0, f"a {limit}-byte buffer is not whole packets"
-        self.reads[-1] += 1
+        self.replies[-1][2] += 1
         out = b""
         while len(out) < limit:
             if not self.pending:
@@ -299,17 +299,23 @@ class BulkPackets:
 
 
 def test_a_reply_is_read_in_at_most_two_reads_of_whole_packets(virtual):
-    """The first packet says the reply's length; the rest comes in one read whose buffer
-    is whole packets, ended by the reply's short packet or by filling up exactly."""
+    """A report of fixed length comes in one read whose buffer is whole packets, ended by
+    the reply's short packet or by filling up exactly. Any other reply's first packet says
+    its length, and the rest comes in one more such read."""
     printer = connect(virtual)
     bulk = BulkPackets(printer.transport)
     printer.transport = bulk
-    printer.status()  # 0xE1, several packets
-    printer.errors()
-    printer.read_eeprom("reel0")
-    printer.files()
-    printer.send_file(prepare_job(circle_job(4, heat=False)), "bulk")
-    printer.gcode("M105\r")
+    printer.status()  # 0xE1, 222 bytes: four packets
+    printer.errors()  # 0xE3, 65 bytes: a full packet and one byte
+    printer.read_eeprom("reel0")  # 0xE6, 193 bytes
+    printer.files()  # 0xE0, its length in its first packet: one
+    for n in range(4):  # acks, 0xE3
+        printer.send_file(prepare_job(circle_job(4, heat=False)), f"bulk{n}", run=False)
+    printer.files()  # four files: 67 bytes
+    printer.gcode("M105\r")  # 0xE7, its length in its first packet
     printer.gcode("M119\r")
-    assert len(bulk.reads) > 8
-    assert max(bulk.reads) == 2  # the long ones took two, no more
+    assert {0xE0, 0xE1, 0xE3, 0xE6, 0xE7} <= {code for code, _, _ in bulk.replies}
+    assert len(bulk.replies) > 8
+    for code, length, reads in bulk.replies:
+        assert reads == (1 if code in FIXED_REPLY_LENGTH or length <= 64 else 2), hex(code)
+    assert any(code not in FIXED_REPLY_LENGTH and reads == 2 for code, _, reads in bulk.replies)
