@@ -28,6 +28,7 @@ NATIVE_MODULES = [
     "robox/hardware/usb.py",
     "robox/hardware/eeprom.py",
     "robox/hardware/faults.py",
+    "robox/hardware/sdcard.py",
     "robox/formats/float8.py",
     "robox/gcode/translate.py",
     "robox/gcode/text.py",

@@ -30,6 +30,7 @@ MODULES = (
     "robox.hardware.usb",
     "robox.hardware.eeprom",
     "robox.hardware.faults",
+    "robox.hardware.sdcard",
     "robox.formats.float8",
     "robox.gcode.translate",
     "robox.gcode.text",

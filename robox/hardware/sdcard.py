@@ -1,13 +1,18 @@
-"""A simulated SD card: 512-byte blocks over a byte store, card-detect, faults, counters."""
+"""A simulated SD card: 512-byte blocks over a byte store, card-detect, faults, counters.
+
+Part of the compiled core (robox.native): the firmware model looks at the card-detect
+switch on every pass. The fault campaigns extend the class to record writes.
+"""
 
 from __future__ import annotations
 
 from robox.errors import CardAbsent, CardReadError, PowerCut
 from robox.formats.sdcard import BLOCK_SIZE, card_blocks
-from robox.hardware.faults import FaultPlan
+from robox.hardware.faults import FaultPlan, PowerPlan, mypyc_attr
 from robox.hardware.storage import MemoryStorage, Storage
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)
 class SdCard:
     """Block device with the card-detect switch and the injectable faults of a FaultPlan.
 
@@ -28,7 +33,7 @@ class SdCard:
         self.initialisations = 0
         self._accesses = 0
         #: The printer's supply (a PowerPlan shared with the other media), if watched.
-        self.power = None
+        self.power: PowerPlan | None = None
 
     @classmethod
     def blank(cls, blocks: int, faults: FaultPlan | None = None) -> SdCard:
@@ -90,7 +95,7 @@ class SdCard:
         landing = self.power.write(self, block, data) if self.power is not None else None
         torn = self.faults.tear_write == self.writes
         if torn or landing is not None:
-            tear = self.faults.tear if torn else landing.tear()
+            tear = self.faults.tear if torn or landing is None else landing.tear()
             old = self.storage.read(offset, BLOCK_SIZE)
             self.storage.write(offset, tear.apply(old, bytes(data)) if tear else bytes(data))
             raise PowerCut(f"power cut during write {self.writes} (block {block})")
