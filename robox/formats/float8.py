@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import math
 import re
-import struct
 from typing import Final
 
 from robox.errors import UsageError
+from robox.firmware.carith import f32
 
 WIDTH = 8
 _NUMBER = re.compile(
@@ -24,11 +24,11 @@ BLANKS: Final = b" \t\n\v\f\r"  # the white space strtod and strtol skip (the pa
 
 def to_float32(value: float) -> float:
     """`value` rounded to C float precision (overflow gives infinity, as strtof does)."""
-    if math.isnan(value) or math.isinf(value):
+    if value - value != 0.0:  # NaN or infinite (compiled: native, not a call)
         return value
     if abs(value) > _FLOAT32_MAX:
         return math.copysign(math.inf, value)
-    return struct.unpack("<f", struct.pack("<f", value))[0]
+    return f32(value)
 
 
 def fits(value: float) -> bool:
@@ -66,7 +66,7 @@ def parse(raw: bytes | bytearray) -> float:
 def skip_blanks(text: bytes, i: int) -> int:
     """Where the first byte at or after `i` that is not white space is (len: none)."""
     n = len(text)
-    while i < n and text[i] in BLANKS:
+    while i < n and (text[i] == 32 or 9 <= text[i] <= 13):  # BLANKS, compared natively
         i += 1
     return i
 
@@ -100,7 +100,8 @@ def short_decimal(text: bytes, i: int) -> float:
         else:
             break
         k += 1
-    if digits == 0 or digits > 15 or (k < n and text[k] in b"eExX"):
+    after = text[k] | 0x20 if k < n else 0  # the byte after, lower-cased
+    if digits == 0 or digits > 15 or after == 101 or after == 120:  # e, x: not so short
         return math.nan
     value = float(whole) / _POWERS_OF_TEN[places] if places > 0 else float(whole)
     return -value if negative else value
