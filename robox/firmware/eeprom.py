@@ -178,26 +178,29 @@ class Eeproms:
                     and state.verified_banks >= 2:
                 continue
             state.last_step = now
-            if _given_up(state, self.bus.chip(state.index)):
+            chip = self.bus.chip(state.index)
+            if _given_up(state, chip):
                 state.acked = False
                 continue
-            self._step(state)
+            self._step(state, chip)
 
     # ----------------------------------------------------------- one step
     def _address(self, state: EepromState) -> int:
         return (BANK1 if state.working_bank else BANK0) + state.counter
 
-    def _step(self, state: EepromState) -> None:
+    def _step(self, state: EepromState, chip: EepromChip | None) -> None:
+        """One step, its transaction made with `chip` (the bus's chip in the EEPROM's
+        socket: None, none there), as the bus would make it."""
         address = self._address(state)
         if state.status is VALID and state.writing:
-            if not self.bus.write(state.index, address, state.buffer[state.counter]):
+            if chip is None or not chip.write(address, state.buffer[state.counter]):
                 self._no_ack(state)
                 return
             state.acked = True
             state.last_ack = self.clock.now
             state.writing = False  # the next step reads it back
             return
-        value = self.bus.read(state.index, address)
+        value = None if chip is None else chip.read(address)
         if value is None:
             self._no_ack(state)
             return
@@ -388,7 +391,15 @@ class Eeproms:
         return state.status is not VALID or state.verified_banks >= 2
 
     def all_quiet(self) -> bool:
-        return self.quiet(HEAD) and self.quiet(REEL0) and self.quiet(REEL1)
+        """quiet() of all three (asked on every pass: one loop, no call per EEPROM)."""
+        for state in self.states:
+            status = state.status
+            if status is NOT_PRESENT:
+                if state.acked:
+                    return False
+            elif status is VALID and state.verified_banks < 2:
+                return False
+        return True
 
     def run_inert_passes(self, dt: float, most: int) -> int:
         """Run up to `most` passes of `dt` (the clock moved on pass by pass) in which this
@@ -432,7 +443,7 @@ class Eeproms:
             done += 1
             for state in due:
                 state.last_step = clock.now
-                self._step(state)
+                self._step(state, self.bus.chip(state.index))
         for state, chip in loading:
             self._take_reads(state, chip, done)
         return done

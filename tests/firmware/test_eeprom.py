@@ -192,3 +192,27 @@ def test_float_fields_for_the_firmware_itself():
     assert rig.eeproms.set_float(REEL, "remaining_filament", 239993.25)
     assert rig.eeproms.host_read(REEL)[0xB8:0xC0] == b"239993.2"
     assert rig.eeproms.get_float(REEL, "remaining_filament") == float8.to_float32(239993.2)
+
+
+def test_all_quiet_is_each_eeprom_quiet_at_every_pass():
+    """all_quiet(), asked on every pass, against quiet() of each EEPROM: through loading,
+    verifying, a host's change rewritten, an empty socket, a good chip and a blank one
+    (PRESENT), and an unplug (NOT_PRESENT, then given up)."""
+    blank = EepromChip()  # no good bank: PRESENT
+    reel = EepromChip(fmt.chip_image(reel_data()))
+    rig = Rig(reel0=reel, head=blank)  # reel 1: no multiplexer, an empty socket
+    seen = set()
+
+    def check(n: int) -> None:
+        for _ in range(n):
+            rig.passes(1)
+            quiet = [rig.eeproms.quiet(i) for i in range(3)]
+            assert rig.eeproms.all_quiet() == all(quiet)
+            seen.add((tuple(rig.eeproms.status(i) for i in range(3)), tuple(quiet)))
+
+    check(1000)
+    assert rig.eeproms.host_write(REEL, 10, b"changed")
+    check(1000)
+    reel.unplug()
+    check(400)
+    assert len({all(q) for _, q in seen}) == 2 and len(seen) > 4
