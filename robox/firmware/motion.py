@@ -228,7 +228,7 @@ class Motion:
         pa = self.pa
         m = self.machine
         now = self.fw.clock.now
-        invert = self.fw.parameters.axis_list("invert_switch")
+        invert = self.fw.parameters.invert_switch
         acc = self.acc
         counters = self.autoload_counter
         for i in range(2):
@@ -254,7 +254,7 @@ class Motion:
             until_slip = self.what == UNTIL_SLIP
             threshold_mm = pa["filament_until_slip_threshold" if until_slip
                               else "filament_slip_threshold"]
-            spu: float = self.fw.parameters.axis_floats("steps_per_unit")[axis]
+            spu: float = self.fw.parameters.steps_per_unit[axis]
             temp = float32(float32(float32(spu * threshold_mm)
                                    * self.fw.position.filament_multiplier(i)) * 65536.0)
             threshold = int(temp) if temp < 2147483648.0 else 0x7FFFFFFF
@@ -324,7 +324,7 @@ class Motion:
         A caller that queues blocks on every pass waits for room itself, sparing a
         generator per block."""
         parameters = self.fw.parameters
-        spu = parameters.axis_floats("steps_per_unit")
+        spu = parameters.steps_per_unit
         steps = vec[i64]([0] * 6)
         length = 0
         # An axis that does not move costs nothing below: every float32() of a zero is
@@ -348,7 +348,7 @@ class Motion:
         blk.end_speed = 0
         blk.check_z_top = check_z_top
         if feed_rate > 0.0:
-            max_speed = parameters.axis_floats("max_speed")
+            max_speed = parameters.max_speed
             total = 0.0
             for i in range(6):  # (sum() and math.isfinite() are generic calls compiled)
                 total += moves[i]

@@ -82,13 +82,20 @@ class Parameters:
     #: values["acceleration"], as a native integer for the step interrupt, which reads it
     #: at every run of interrupts (kept by changed())
     acceleration: i64
+    #: The per-axis parameters read for every block or pass, in axis order (X Y Z E D B),
+    #: kept by changed(): the numbers in packed vectors (compiled, read without unboxing:
+    #: robox.packed), the switch levels in a list. Read them, never change them.
+    steps_per_unit: vec[float]
+    max_speed: vec[float]
+    travel: vec[float]
+    invert_switch: list[int]
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
         self.values: dict[str, Any] = {}
         self.acceleration = 0
-        self.lists: dict[str, list] = {}  # axis_list()'s, made at first use
-        self.floats: dict[str, vec[float]] = {}  # axis_floats()'s, likewise
+        self.steps_per_unit = self.max_speed = self.travel = vec[float]([])
+        self.invert_switch = []
 
     def initialise(self) -> None:
         self.defaults()
@@ -109,27 +116,16 @@ class Parameters:
     def changed(self) -> None:
         """After `values` changed: what is kept from them made again (every change goes
         through set_from_line or defaults, or is M201 through Motion.set_acceleration)."""
-        self.lists.clear()
-        self.floats.clear()
-        self.acceleration = self.values["acceleration"]
+        values = self.values
+        self.acceleration = values["acceleration"]
+        self.steps_per_unit = self._axis_floats("steps_per_unit")
+        self.max_speed = self._axis_floats("max_speed")
+        self.travel = self._axis_floats("travel")
+        self.invert_switch = [int(values["invert_switch"][axis]) for axis in AXES]
 
-    def axis_list(self, name: str) -> list:
-        """A per-axis parameter as a list in axis order (X Y Z E D B), for code that
-        reads it for every block; made again after a G-code changes it (the per-axis
-        values change only through set_from_line). Read it, never change it."""
-        got = self.lists.get(name)
-        if got is None:
-            got = self.lists[name] = [self.values[name][axis] for axis in AXES]
-        return got
-
-    def axis_floats(self, name: str) -> vec[float]:
-        """axis_list() of a parameter whose values are numbers, as floats in a packed
-        vector (compiled, read without unboxing: robox.packed)."""
-        got = self.floats.get(name)
-        if got is None:
-            values = self.values[name]
-            got = self.floats[name] = vec[float]([float(values[axis]) for axis in AXES])
-        return got
+    def _axis_floats(self, name: str) -> vec[float]:
+        values = self.values[name]
+        return vec[float]([float(values[axis]) for axis in AXES])
 
     # ------------------------------------------------------------ G-codes
     def set_from_line(self, code: int, line: Line) -> None:

@@ -154,7 +154,7 @@ class Position:
         the steps make; whether a block was queued."""
         pa = self.pa
         pos, dest, off = self.position, self.destination, self.tool_offset
-        travel = self.fw.parameters.axis_floats("travel")
+        travel = self.fw.parameters.travel
         for i in range(X, Y + 1):  # (a range: compiled, a tuple's iterator is generic)
             if self.homing_done[i]:
                 target = cmax(0.0, cmin(travel[i], f32(dest[i] + off[i])))

@@ -35,6 +35,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Final
 
+from robox.packed import vec
+
 AXES: Final = "XYZEDB"
 X: Final = 0
 Y: Final = 1
@@ -150,7 +152,8 @@ class Machine:
     wheel_slipping: list[bool] = field(default_factory=lambda: [False] * 6)
     stuck: dict[str, bool] = field(default_factory=dict)  # input name -> level it sticks at
     extruded: list[int] = field(default_factory=lambda: [0] * 6)  # through a nozzle
-    hand: list[float] = field(default_factory=lambda: [0.0] * 6)  # mm still to feed
+    # mm still to feed (a packed vector: compiled, hand_busy() on every pass reads it natively)
+    hand: vec[float] = field(default_factory=lambda: vec[float]([0.0] * 6))
     heaters: dict[str, ThermalModel] = field(default_factory=lambda: {
         "nozzle0": ThermalModel("nozzle0", gain=253.0, tau=71.0, lag=2.0),
         "nozzle1": ThermalModel("nozzle1", gain=253.0, tau=71.0, lag=2.0),

@@ -557,3 +557,29 @@ def test_the_interrupts_acceleration_follows_every_change_of_the_parameter(wire)
     assert seen() == (7, 7)
     run(wire, "M502")
     assert seen() == (factory, factory) and factory != 7
+
+
+def test_the_per_axis_copies_follow_every_change_of_the_parameters(wire):
+    """Blocks and passes read steps per unit, speed and travel limits and the switch levels
+    from copies in axis order (packed vectors compiled): each must follow a G-code that
+    changes the parameter, M501 (the saved ones) and M502 (factory settings)."""
+    parameters = wire.fw.parameters
+    names = ("steps_per_unit", "max_speed", "travel", "invert_switch")
+
+    def seen() -> list[tuple[list, list]]:
+        return [([getattr(parameters, name)[i] for i in range(6)],
+                 [parameters.values[name][axis] for axis in "XYZEDB"]) for name in names]
+
+    factory = seen()
+    run(wire, "M92 X100 D700", "M202 Y50", "M520 Z90", "M526 E0 X1")
+    changed = seen()
+    assert [copy for copy, _ in changed] == [values for _, values in changed]
+    assert changed[0][0][0] == 100.0 and changed[0][0][4] == 700.0
+    assert changed[1][0][1] == 50.0 and changed[2][0][2] == 90.0
+    assert changed[3][0][3] == 0 and changed[3][0][0] == 1
+    run(wire, "M500", "M502")
+    assert seen() == factory and factory != changed
+    run(wire, "M501")  # what M500 saved (steps per unit among it)
+    saved = seen()
+    assert [copy for copy, _ in saved] == [values for _, values in saved]
+    assert saved[0] == changed[0]
