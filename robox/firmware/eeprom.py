@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import IntEnum
 from typing import TYPE_CHECKING, Final
 
@@ -93,7 +93,9 @@ class EepromState:
 
     index: EepromIndex
     status: Status = NOT_PRESENT
-    buffer: bytearray = field(default_factory=lambda: bytearray(BANK_SIZE))
+    #: The RAM copy of a bank: bytes, made anew by a change (see _spliced), where a
+    #: bytearray's items and slices are generic lookups compiled.
+    buffer: bytes = bytes(BANK_SIZE)
     working_bank: int = 0
     counter: int = 0
     writing: bool = False
@@ -105,7 +107,12 @@ class EepromState:
 
     @property
     def data(self) -> bytes:
-        return bytes(self.buffer[:DATA_SIZE])
+        return self.buffer[:DATA_SIZE]
+
+
+def _spliced(buffer: bytes, offset: int, data: bytes) -> bytes:
+    """`buffer` with `data` in place from `offset` on."""
+    return buffer[:offset] + data + buffer[offset + len(data) :]
 
 
 def _given_up(state: EepromState, chip: EepromChip | None) -> bool:
@@ -212,11 +219,11 @@ class Eeproms:
             else:
                 state.writing = True
             return
-        state.buffer[state.counter] = value
+        state.buffer = _spliced(state.buffer, state.counter, bytes((value,)))
         state.counter += 1
         if state.counter < BANK_SIZE:
             return
-        if eeprom_crc(bytes(state.buffer)) == 0:
+        if eeprom_crc(state.buffer) == 0:
             state.verified_banks = 1  # the bank just loaded
             self._become(state, VALID)
         elif state.working_bank == 1:
@@ -258,8 +265,8 @@ class Eeproms:
         new = mask7(data[: max(0, end - offset)])
         if state.buffer[offset:end] == new:
             return False
-        state.buffer[offset:end] = new
-        state.buffer[DATA_SIZE:BANK_SIZE] = struct.pack("<I", eeprom_crc(state.data))
+        data = _spliced(state.buffer[:DATA_SIZE], offset, new)
+        state.buffer = data + struct.pack("<I", eeprom_crc(data))
         state.counter = 0
         state.writing = False
         state.verified_banks = 0
@@ -298,8 +305,7 @@ class Eeproms:
     def format(self, index: EepromIndex) -> None:
         """Zero the data, mark VALID; the chip is rewritten by the normal process."""
         state = self.states[index]
-        state.buffer[:DATA_SIZE] = bytes(DATA_SIZE)
-        state.buffer[DATA_SIZE:BANK_SIZE] = struct.pack("<I", eeprom_crc(bytes(DATA_SIZE)))
+        state.buffer = bytes(DATA_SIZE) + struct.pack("<I", eeprom_crc(bytes(DATA_SIZE)))
         state.counter = 0
         state.writing = False
         state.verified_banks = 0
@@ -315,7 +321,7 @@ class Eeproms:
         state = self.states[index]
         if state.status is not VALID:
             return default
-        return float8.parse(bytes(state.buffer[address : address + 8]).split(b"\0", 1)[0])
+        return float8.parse(state.buffer[address : address + 8].split(b"\0", 1)[0])
 
     def write_float_at(self, index: EepromIndex, address: int, value: float) -> None:
         """Store `value` as printf("%f") cut to 8 characters. Like the firmware, this
@@ -323,15 +329,15 @@ class Eeproms:
         state = self.states[index]
         if state.status is not VALID or address > DATA_SIZE - 8:
             return
-        state.buffer[address : address + 8] = float8.encode(value)
-        state.buffer[DATA_SIZE:BANK_SIZE] = struct.pack("<I", eeprom_crc(state.data))
+        data = _spliced(state.buffer[:DATA_SIZE], address, float8.encode(value))
+        state.buffer = data + struct.pack("<I", eeprom_crc(data))
         state.counter = 0
         state.writing = False
         state.verified_banks = 0
 
     def _head_type(self) -> bytes | None:
         state = self.states[HEAD]
-        return bytes(state.buffer[:8]) if state.status is VALID else None
+        return state.buffer[:8] if state.status is VALID else None
 
     def _head_has(self, feature: str) -> bool:
         name = self._head_type()
@@ -543,7 +549,7 @@ class Eeproms:
             return max(0, n)
         address = self._address(state)
         held: bytes = chip.peek_run(address, n)
-        want = bytes(state.buffer[state.counter : state.counter + n])
+        want = state.buffer[state.counter : state.counter + n]
         if held == want:
             return n
         i = 0  # the first byte to rewrite (both are n long and differ, so one does)
@@ -562,7 +568,7 @@ class Eeproms:
         if state.status is VALID:
             state.counter += n
         else:
-            state.buffer[state.counter : state.counter + n] = data
+            state.buffer = _spliced(state.buffer, state.counter, data)
             state.counter += n
 
     def quiet(self, index: int) -> bool:

@@ -24,7 +24,9 @@ class EepromChip:
         data = bytes([0xFF]) * CHIP_SIZE if content is None else bytes(content)
         if len(data) != CHIP_SIZE:
             raise ValueError(f"an EEPROM chip holds {CHIP_SIZE} bytes, not {len(data)}")
-        self.data = bytearray(data)
+        # bytes, made anew by a write (rare): compiled, a read or a run of them is a native
+        # index or slice, where a bytearray's are generic
+        self.data: bytes = data
         self.clock = clock
         self.faults = faults or EepromFaultPlan()
         self.write_cycle = write_cycle if clock is not None else 0.0
@@ -69,7 +71,7 @@ class EepromChip:
     def peek_run(self, address: int, n: int) -> bytes:
         """`n` bytes from `address`, looked at without a transaction (for planning)."""
         return bytes(self.data[(address + i) % CHIP_SIZE] for i in range(n)) \
-            if address + n > CHIP_SIZE else bytes(self.data[address : address + n])
+            if address + n > CHIP_SIZE else self.data[address : address + n]
 
     def read_run(self, address: int, n: int) -> bytes:
         """`n` single-byte reads from `address` on, all acknowledged (the caller made
@@ -92,14 +94,17 @@ class EepromChip:
         ordinal = self.transactions + 1
         if not self._acknowledges("write"):
             if self.faults.unplug_at == ordinal and self.faults.write_lands:
-                self.data[address % CHIP_SIZE] = value & 0xFF
+                self._put(address % CHIP_SIZE, value)
             return False
         self.writes += 1
         cell, value = address % CHIP_SIZE, value & 0xFF
         landing = None if self.power is None else self.power.write(self, cell, bytes([value]))
         if landing is not None:
-            self.data[cell] = landing.param & 0xFF if landing.mode == "garble" else value
+            self._put(cell, landing.param if landing.mode == "garble" else value)
             raise PowerCut(f"power cut while writing EEPROM byte {cell:#x}")
-        self.data[cell] = value
+        self._put(cell, value)
         self._busy_until = self._now() + self.write_cycle
         return True
+
+    def _put(self, cell: int, value: int) -> None:
+        self.data = self.data[:cell] + bytes((value & 0xFF,)) + self.data[cell + 1 :]

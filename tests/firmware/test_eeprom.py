@@ -131,7 +131,8 @@ def test_host_writes_are_masked_and_stop_at_address_191():
 def test_reports_are_masked_even_if_the_ram_copy_is_not():
     rig = Rig(reel0=EepromChip(fmt.chip_image(reel_data())))
     rig.passes(196)
-    rig.eeproms.states[REEL].buffer[0] = 0xC1
+    state = rig.eeproms.states[REEL]
+    state.buffer = b"\xc1" + state.buffer[1:]
     assert rig.eeproms.host_read(REEL)[0] == 0x41
 
 
