@@ -52,7 +52,6 @@ FIXED: Final = {
 # Commands whose header carries a count: (header length, count offset, count digits)
 VARIABLE: Final = {0x92: (12, 8, 4), 0x95: (4, 0, 4), 0xA0: (4, 2, 2), 0xA2: (4, 2, 2),
                    0xA4: (4, 2, 2), 0xF0: (12, 8, 4)}
-_HEX_PREFIX: Final = (b"0x", b"0X")
 
 
 def _no_reply(response: bytes) -> None:
@@ -62,20 +61,24 @@ def _no_reply(response: bytes) -> None:
 def get_hex(field: bytes | bytearray) -> int:
     """The firmware's get_hex: strtoul(field, 16) over the field as a C string."""
     text = bytes(field).split(b"\0", 1)[0]
+    n = len(text)
     i = 0
-    while i < len(text) and text[i] in b" \t\n\v\f\r":
+    while i < n and (text[i] == 32 or 9 <= text[i] <= 13):  # white space (native compares)
         i += 1
-    negative = text[i : i + 1] == b"-"
-    if text[i : i + 1] in (b"+", b"-"):
+    negative = i < n and text[i] == 45  # -
+    if i < n and (text[i] == 43 or text[i] == 45):
         i += 1
-    if text[i : i + 2] in _HEX_PREFIX and i + 2 < len(text) and \
-            chr(text[i + 2]) in "0123456789abcdefABCDEF":
-        i += 2
+    if i + 2 < n and text[i] == 48 and text[i + 1] | 0x20 == 120 and _hex_digit(text[i + 2]):
+        i += 2  # 0x or 0X, taken only before a digit
     j = i
-    while j < len(text) and chr(text[j]) in "0123456789abcdefABCDEF":
+    while j < n and _hex_digit(text[j]):
         j += 1
     value = int(text[i:j], 16) if j > i else 0
     return (-value if negative else value) & 0xFFFFFFFFFFFFFFFF
+
+
+def _hex_digit(c: int) -> bool:
+    return 48 <= c <= 57 or 97 <= (c | 0x20) <= 102  # 0-9, a-f, A-F
 
 
 def put_hex(value: int, digits: int) -> bytes:

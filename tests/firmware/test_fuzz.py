@@ -1,6 +1,9 @@
 """Any byte sequence on the wire: no exception escapes, and the printer either answers the
 next command or is, as the firmware would be, still collecting an incomplete one."""
 
+import ctypes
+import ctypes.util
+
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -86,3 +89,16 @@ def test_random_pronterface_text_is_answered_or_ignored(parts):
         assert out.endswith(b"ok\r\n") or wire.fw.command.buffer
     else:
         assert out.endswith(b"ok\r\n")
+
+
+@settings(max_examples=3000, deadline=None)
+@given(st.binary(max_size=12).map(lambda raw: bytes(b" \t\n\0+-xX0123456789abcdefABCDEFg"[
+    b % 31] for b in raw)))
+def test_hex_fields_read_as_the_c_librarys_strtoul_reads_them(field):
+    """get_hex against strtoul(field, 16) itself: blanks, signs, 0x prefixes with and
+    without a digit after them, NULs that end the field, junk (at most 12 characters,
+    so no value reaches the 64 bits where strtoul would saturate)."""
+    libc = ctypes.CDLL(ctypes.util.find_library("c"))
+    libc.strtoul.restype = ctypes.c_ulong
+    libc.strtoul.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_char_p), ctypes.c_int]
+    assert get_hex(field) == libc.strtoul(field, None, 16), field
