@@ -196,8 +196,8 @@ class Eeproms:
         return (BANK1 if state.working_bank else BANK0) + state.counter
 
     def _step(self, state: EepromState, chip: EepromChip | None) -> None:
-        """One step, its transaction made with `chip` (the bus's chip in the EEPROM's
-        socket: None, none there), as the bus would make it."""
+        """One step, its transaction made with `chip`, the chip the bus reaches in the
+        EEPROM's socket (None: none, and the transaction goes unacknowledged)."""
         address = self._address(state)
         if state.status is VALID and state.writing:
             if chip is None or not chip.write(address, state.buffer[state.counter]):

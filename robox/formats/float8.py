@@ -19,7 +19,6 @@ _NUMBER = re.compile(
     rb"\s*([+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan))", re.IGNORECASE)
 _FLOAT32_MAX = 3.4028234663852886e38
 _POWERS_OF_TEN: Final = [10.0**i for i in range(16)]  # each exact as a double
-BLANKS: Final = b" \t\n\v\f\r"  # the white space strtod and strtol skip (the pattern's \s)
 
 
 def to_float32(value: float) -> float:
@@ -66,7 +65,8 @@ def parse(raw: bytes | bytearray) -> float:
 def skip_blanks(text: bytes, i: int) -> int:
     """Where the first byte at or after `i` that is not white space is (len: none)."""
     n = len(text)
-    while i < n and (text[i] == 32 or 9 <= text[i] <= 13):  # BLANKS, compared natively
+    # the white space strtod and strtol skip (the pattern's \s): space, \t \n \v \f \r
+    while i < n and (text[i] == 32 or 9 <= text[i] <= 13):
         i += 1
     return i
 

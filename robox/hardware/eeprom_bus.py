@@ -25,11 +25,3 @@ class EepromBus:
 
     def insert(self, index: int, chip: EepromChip | None) -> None:
         self.sockets[index] = chip
-
-    def read(self, index: int, address: int) -> int | None:
-        chip = self.chip(index)
-        return None if chip is None else chip.read(address)
-
-    def write(self, index: int, address: int, value: int) -> bool:
-        chip = self.chip(index)
-        return False if chip is None else chip.write(address, value)
