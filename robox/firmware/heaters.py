@@ -193,7 +193,8 @@ class Heaters:
         self.fw.file_system.set_nonvolatile(HOT_FLAG_BYTE, int(self.head_hot_now()))
         self._drive_plants()
 
-    def _control(self, c: Controller, gains, invert: bool = False) -> None:
+    def _control(self, c: Controller, gains: tuple[float, float, float],
+                 invert: bool = False) -> None:
         kp, ki, kd = gains
         if c.mode:
             target = c.setpoint()
