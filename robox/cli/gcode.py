@@ -17,6 +17,31 @@ nozzle_option = click.option(
     help="Single-material heads: nozzle 0 or 1 throughout (default: from the slicer's "
          "nozzle diameter, 0 below 0.6 mm, and per feature from the slicer's ;WIDTH: "
          "marks where it writes them).")
+valve_option = click.option(
+    "--valve", type=click.Choice(["automaker", "simple"]), default="automaker",
+    show_default=True,
+    help="How a slicer's file drives the needle valve: 'automaker' closes on the move "
+         "over each path's last ejection volume and refills on every open, as AutoMaker "
+         "did; 'simple' shuts and opens standing still (for comparison).")
+ejection_option = click.option(
+    "--ejection", metavar="MM3[,MM3]",
+    help="The needle's ejection volume per nozzle (default: the head's, e.g. 0.3,0.6 "
+         "on RBX01-SM; see robox/formats/heads.py).")
+
+
+def parse_ejection(text: str | None) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        raise UsageError(f"--ejection {text!r}: give one or two volumes in mm3, "
+                         "e.g. 0.3,0.6") from None
+    if not 1 <= len(values) <= 2 or any(not 0.01 <= v <= 50.0 for v in values):
+        raise UsageError(f"--ejection {text!r}: one or two volumes of 0.01 to 50 mm3")
+    return values
+
+
 macros_option = click.option(
     "--macros", type=click.Path(file_okay=False, exists=True, path_type=Path),
     help="Directory of AutoMaker-style macros (NAME#HEAD#N0.gcode ...) for Macro:NAME "
@@ -33,17 +58,20 @@ macros_option = click.option(
               help="The head's type code (RBX01-SM, RBX01-S2, RBX01-DM, RBXDV-S1, RX...).")
 @nozzle_option
 @macros_option
+@valve_option
+@ejection_option
 @click.option("--no-sequences", is_flag=True,
               help="Leave out the start and end sequences (home, heat, level, purge; park, "
                    "heaters off, door unlock).")
 @json_option
 def roboxise_cmd(source: str, target: str, filament_diameter: float, head: str,
-                 nozzle: int | None, macros: Path | None, no_sequences: bool,
-                 as_json: bool) -> None:
+                 nozzle: int | None, macros: Path | None, valve: str, ejection: str | None,
+                 no_sequences: bool, as_json: bool) -> None:
     """Translate a slicer's G-code IN into a Robox job OUT: E to cubic millimetres, the
     needle valve for retractions, Robox temperature codes, start and end sequences."""
     options = Options(filament_diameter=(filament_diameter, filament_diameter), head=head,
-                      nozzle=nozzle, macros=macros, sequences=not no_sequences)
+                      nozzle=nozzle, macros=macros, sequences=not no_sequences, valve=valve,
+                      ejection=parse_ejection(ejection))
     summary = roboxise_file(source, target, options)
     data = summary.as_dict()
     if as_json:
@@ -87,13 +115,22 @@ def _duration(seconds: float) -> str:
                    "reels 0 and 1 of a dual-material head.")
 @nozzle_option
 @macros_option
+@valve_option
+@ejection_option
 @click.option("--raw", is_flag=True, help="Run FILE as it is, without translating a "
                                           "slicer's G-code.")
+@click.option("--plot", "plot_path", metavar="FILE.png",
+              type=click.Path(dir_okay=False, writable=False),
+              help="Draw a layer from above: paths coloured by the plastic they got "
+                   "against what was driven for them, blobs circled, travels faint.")
+@click.option("--layer", type=click.IntRange(1), metavar="N",
+              help="The layer --plot draws (from 1; default: the layer of the worst place).")
 @json_option
 @click.pass_context
 def simulate_cmd(ctx: click.Context, source: str, head: str, filament_diameter: float,
                  remaining: tuple[float, ...], nozzle: int | None, macros: Path | None,
-                 raw: bool, as_json: bool) -> None:
+                 valve: str, ejection: str | None, raw: bool, plot_path: str | None,
+                 layer: int | None, as_json: bool) -> None:
     """Print FILE on a fresh virtual printer, offline and in simulated time, and report
     the print time, the filament each extruder uses, the peak temperatures, and what
     would go wrong: moves outside the build plate, extrusion with the valve shut, a reel
@@ -104,8 +141,13 @@ def simulate_cmd(ctx: click.Context, source: str, head: str, filament_diameter: 
     if len(remaining) > 2:
         raise UsageError("--remaining is given once (every reel) or twice (reels 0 and 1)")
     reels = (remaining * 2)[:2] if remaining else (240.0, 240.0)
+    if layer is not None and plot_path is None:
+        raise UsageError("--layer goes with --plot")
+    if plot_path is not None:
+        require_png_target(plot_path)
     setup = Setup(head=head, filament_diameter=filament_diameter, remaining_m=reels,
-                  nozzle=nozzle, macros=macros, raw=raw)
+                  nozzle=nozzle, macros=macros, raw=raw, valve=valve,
+                  ejection=parse_ejection(ejection))
     quiet = as_json or not sys.stderr.isatty()
     with click.progressbar(length=1, label="printing (simulated)", file=sys.stderr,
                            hidden=quiet) as bar:
@@ -114,12 +156,45 @@ def simulate_cmd(ctx: click.Context, source: str, head: str, filament_diameter: 
             bar.update(line - bar.pos)
 
         report = simulate(source, setup, progress)
+    drawn = None
+    if plot_path is not None:
+        drawn = draw(report, plot_path, layer)
     if as_json:
         emit_json(report.as_dict())
     else:
         _show(report)
+        if drawn is not None:
+            click.echo(f"plot: layer {drawn} drawn in {plot_path}")
     if report.errors or not report.completed:
         ctx.exit(EXIT_PROBLEM)
+
+
+def require_png_target(path: str) -> None:
+    """Refuse at once a --plot target that cannot be written (before the print runs)."""
+    target = Path(path)
+    if not target.name.lower().endswith(".png"):
+        raise UsageError(f"--plot {path}: the picture is a PNG file (FILE.png)")
+    if not target.resolve().parent.is_dir():
+        raise UsageError(f"--plot {path}: no directory {target.parent}")
+
+
+def draw(report, path: str, layer: int | None) -> int:
+    """The --plot picture, written whole or not at all."""
+    import io
+
+    from robox.fileio import write_atomically
+    from robox.sim.quality import plot
+
+    if report.quality is None:
+        raise UsageError("--plot: the simulation recorded no plastic")
+    buffer = io.BytesIO()
+    worst = sorted(report.quality_worst, key=lambda p: -p.mm3)
+    try:
+        drawn = plot(report.quality, buffer, layer, worst, Path(report.file).name)
+    except ValueError as e:
+        raise UsageError(f"--plot: {e}") from None
+    write_atomically(path, buffer.getvalue())
+    return drawn
 
 
 def _show(report) -> None:
@@ -144,6 +219,19 @@ def _show(report) -> None:
     if t is not None:
         dropped = ", ".join(f"{code} x{n}" for code, n in t["dropped"].items())
         rows.append(("dropped", dropped or "none"))
+    d = report.deposition
+    if d is not None:
+        rows.append(("path ends", f"{d['path_ends']:,} on the plate ({d['opens']:,} opens, "
+                                  f"{d['layers']} layers)"))
+        rows.append(("blobs", f"{d['blob_mm3']:.3f} mm3 left standing still "
+                              f"({d['blob_mm3_per_path_end']:.3f} mm3 per path end)"))
+        rows.append(("starved", f"{d['starved_mm']:.1f} mm of path below 80% of its plastic "
+                                f"({d['starved_mm_per_open']:.2f} mm per open)"))
+        for i, w in enumerate(d["worst"], 1):
+            what = (f"blob of {w['mm3']:.3f} mm3" if w["kind"] == "blob" else
+                    f"{w['length_mm']:.1f} mm starved, {w['mm3']:.3f} mm3 short")
+            rows.append((f"worst {i}", f"{what} at X {w['x']:.1f} Y {w['y']:.1f}, layer "
+                                       f"{w['layer']}, job line {w['line']}"))
     width = max(len(name) for name, _ in rows)
     for name, value in rows:
         click.echo(f"{name:<{width}}  {value}")

@@ -44,12 +44,34 @@ from pathlib import Path
 from typing import Final
 
 from robox.errors import UsageError
+from robox.formats.heads import head_kind, head_valves
 from robox.gcode.text import code_part, words
+from robox.gcode.valve import ValveStage
+
+#: A single-material head's nozzle for each feature the slicers mark (;TYPE:), as
+#: AutoMaker's profiles printed them: walls, skirts, top surfaces, gap fill and support
+#: interfaces with the fine nozzle 0, infill and support with the wide nozzle 1; the
+#: first layer all with nozzle 0. Other features follow the extrusion width.
+FEATURE_NOZZLE = {
+    "perimeter": 0, "external perimeter": 0, "overhang perimeter": 0, "inner wall": 0,
+    "outer wall": 0, "overhang wall": 0, "wall-inner": 0, "wall-outer": 0,
+    "skirt/brim": 0, "skirt": 0, "brim": 0, "top solid infill": 0, "top surface": 0,
+    "bottom surface": 0, "skin": 0, "gap fill": 0, "gap infill": 0, "ironing": 0,
+    "support material interface": 0, "support interface": 0, "support-interface": 0,
+    "internal infill": 1, "sparse infill": 1, "fill": 1, "solid infill": 1,
+    "internal solid infill": 1, "bridge infill": 1, "bridge": 1, "internal bridge": 1,
+    "support material": 1, "support": 1,
+}
 
 DEFAULT_DIAMETER = 1.75
 HEAD_DEFAULT = "RBX01-SM"
 #: A single-material head prints extrusion widths from this up with its wide nozzle 1.
 WIDE_MM = 0.6
+#: The start sequence's purge (mm3 in all, shared by the nozzles the job uses), and the
+#: plastic drawn back from each feed at the end so the head is not left under pressure
+#: (AutoMaker's after_print: E-3).
+PURGE_MM3 = 15.0
+DEPRESSURISE_MM3 = 3.0
 SEQUENCES = Path(__file__).resolve().parent.parent / "data" / "sequences"
 
 SLICERS = (  # (name, pattern in the first comment lines)
@@ -68,25 +90,8 @@ SETTING = re.compile(rb"^;\s*([A-Za-z_ ]+?)\s*[=:]\s*(.*?)\s*$")
 
 # Codes dropped: the printer has no such code, or one with another meaning.
 DROPPED_QUIETLY = {"G21", "M82", "M83"}
-
-
-def head_kind(type_code: str) -> str:
-    """'dual' (two materials, E and D), 'single' (one material, two nozzles behind a
-    valve) or 'plain' (no valve): from the head EEPROM's type code as eeprom.c reads
-    it (old names RBX01-SM/-S2/-DM; new names RX..., digit 7 the material count, digit
-    6 odd when there is a valve)."""
-    code = type_code.strip().upper()
-    if code.startswith("RBX01-DM"):
-        return "dual"
-    if code.startswith(("RBX01-SM", "RBX01-S2")):
-        return "single"
-    if code.startswith("RX") and len(code) >= 8:
-        if (ord(code[7]) - ord("0")) & 3 == 2:
-            return "dual"
-        return "single" if (ord(code[6]) - ord("0")) & 1 else "plain"
-    if code.startswith("RBX"):
-        return "plain"
-    raise UsageError(f"unknown head type {type_code!r} (e.g. RBX01-SM, RBX01-DM)")
+#: Between the translator and its valve stage: the start sequence ends here.
+START_DONE = b";START_DONE"
 
 
 @dataclass
@@ -96,6 +101,8 @@ class Options:
     nozzle: int | None = None  # single-material heads: 0 or 1; None: from the slicer
     macros: Path | None = None
     sequences: bool = True  # our start and end sequences around the job
+    valve: str = "automaker"  # "automaker": closes on the move, opens refill; "simple"
+    ejection: tuple[float, ...] | None = None  # mm3 per nozzle (None: the head's own)
 
 
 @dataclass
@@ -113,7 +120,10 @@ class Summary:
     dropped: Counter = field(default_factory=Counter)
     macros: int = 0
     sequence_mm3: float = 0.0  # the start sequence's purge
-    nozzle_changes: int = 0  # by extrusion width
+    depressurise_mm3: float = 0.0  # drawn back at the end, per feed
+    nozzle_changes: int = 0  # by feature or extrusion width
+    valve: dict | None = None  # what the valve stage did (robox.gcode.valve)
+    start_lines: int = 0  # the job's lines up to the end of the start sequence
 
     def as_dict(self) -> dict:
         return {"slicer": self.slicer, "e_mode": self.e_mode,
@@ -123,7 +133,8 @@ class Summary:
                 "valve_cycles": self.valve_cycles, "retractions": self.retractions,
                 "dropped": dict(sorted(self.dropped.items())), "macros": self.macros,
                 "sequence_mm3": round(self.sequence_mm3, 3),
-                "nozzle_changes": self.nozzle_changes}
+                "depressurise_mm3": round(self.depressurise_mm3, 3),
+                "nozzle_changes": self.nozzle_changes, "valve": self.valve}
 
 
 @dataclass
@@ -134,6 +145,8 @@ class Detected:
     relative_e: bool = False
     nozzle_diameter: float | None = None
     marlin_e: bool = False  # M82, M83 or G92 E: E written in a slicer's Marlin manner
+    features: bool = False  # the slicer marks its features (;TYPE:)
+    tools: tuple[int, ...] = (0,)  # the slicer's extruders the file uses
 
     @property
     def from_slicer(self) -> bool:
@@ -157,6 +170,14 @@ def detect(head: bytes, tail: bytes = b"") -> Detected:
         found.robox = True
     if re.search(rb"^\s*(M82|M83|G92\s+E)\b", head, re.M | re.I):
         found.marlin_e = True
+    if re.search(rb"^;TYPE:", head, re.M):
+        found.features = True
+    used = re.search(rb"^; filament used \[mm\] = ([-\d., ]+)$", tail, re.M)
+    if used:
+        amounts = [_first_float(v) or 0.0 for v in used.group(1).split(b",")]
+        found.tools = tuple(i for i, v in enumerate(amounts) if v > 0) or (0,)
+    elif re.search(rb"^T1\b", head, re.M):
+        found.tools = (0, 1)
     if re.search(rb"^;FLAVOR:UltiGCode", top, re.M):
         found.volumetric = True
     settings = {}
@@ -398,6 +419,11 @@ class Translator:
         self.s.nozzle = self.nozzle
         self.by_width = self.kind == "single" and options.nozzle is None
         self.width: float | None = None  # the slicer's extrusion width of this feature
+        self.feature_nozzle = -1  # the nozzle of the slicer's feature (-1: none marked)
+        self.layer = 0  # the slicer's layer changes so far (1: the first layer)
+        self.stage: ValveStage | None = None
+        if options.valve == "automaker" and self.kind != "plain" and not detected.robox:
+            self.stage = ValveStage(head_valves(options.head, options.ejection))
         d = options.filament_diameter
         self.area_e = math.pi * d[0] * d[0] / 4.0  # mm2 of filament, for E and for D
         self.area_d = math.pi * d[1] * d[1] / 4.0
@@ -469,6 +495,25 @@ class Translator:
 
     # ------------------------------------------------------------ the stream
     def run(self, lines: Iterable[bytes]) -> Iterator[bytes]:
+        stage = self.stage
+        if stage is None:
+            yield from self._run(lines)
+            return
+        written = 0
+        for line in self._run(lines):
+            if line == START_DONE:
+                self.s.start_lines = written + len(stage.buf)
+                continue
+            for out in stage.feed(line):
+                written += 1
+                yield out
+        for out in stage.finish():
+            written += 1
+            yield out
+        self.s.lines_out = written
+        self.s.valve = stage.counts.as_dict()
+
+    def _run(self, lines: Iterable[bytes]) -> Iterator[bytes]:
         s = self.s
         if s.passthrough:
             for raw in lines:
@@ -480,6 +525,9 @@ class Translator:
             return
         if self.o.sequences:
             yield from self._count(self._sequence("start"))
+        s.start_lines = s.lines_out
+        if self.stage is not None:
+            yield START_DONE
         out: list[bytes] = []
         line = b""
         for raw in lines:
@@ -488,8 +536,11 @@ class Translator:
             if move is None:
                 line = code_part(raw)
                 if not line:
-                    if raw.startswith(b";WIDTH:") and self.by_width:
-                        self.width = _width(raw[7:])
+                    if raw.startswith(b";"):
+                        self._comment(raw, out)
+                        if out:
+                            yield from out
+                            out.clear()
                     continue
                 if not line.isascii():
                     raise UsageError(f"line {s.lines_in}: non-ASCII bytes outside a comment")
@@ -517,11 +568,55 @@ class Translator:
             self.s.lines_out += 1
             yield line
 
+    def _nozzles_used(self) -> list[tuple[int, str]]:
+        """The nozzles the job will use and the feed of each, the current one last: on a
+        single-material head both where the nozzle follows the slicer's features, on a
+        dual-material head each tool the slicer's file names."""
+        current = self._tool_nozzle()
+        if self.kind == "dual":
+            used = [(0 if tool == 1 else 1, "D" if tool == 1 else "E")
+                    for tool in self.d.tools if tool < 2]
+        elif self.by_width and self.d.features:
+            used = [(0, "E"), (1, "E")]
+        else:
+            used = [(current, "E")]
+        used.sort(key=lambda nf: nf[0] == current)
+        return used
+
+    def _purge(self) -> Iterator[bytes]:
+        """Each nozzle the job uses selected, its feed pressurised and a line purged."""
+        used = self._nozzles_used()
+        pressurised: set[str] = set()
+        share = PURGE_MM3 / len(used)
+        for i, (nozzle, feed) in enumerate(used):
+            yield b"G0 X10 Y%d Z0.3" % (10 + 3 * i)
+            yield b"T%d" % nozzle
+            if feed not in pressurised:
+                pressurised.add(feed)
+                yield b"G36 " + feed.encode() + b"500 F400"  # until the drive slips
+            yield b"G0 B1"
+            yield b"G1 X60 " + feed.encode() + _fmt(share) + b" F1200"
+            self.s.sequence_mm3 += share
+            yield b"G0 B0"
+
+    def _depressurise(self) -> Iterator[bytes]:
+        feeds = sorted({feed for _, feed in self._nozzles_used()})
+        yield b"G1 " + b" ".join(f.encode() + _fmt(-DEPRESSURISE_MM3) for f in feeds) + \
+            b" F400"
+        self.s.depressurise_mm3 += DEPRESSURISE_MM3 * len(feeds)
+
     def _sequence(self, name: str) -> Iterator[bytes]:
         nozzle = self._tool_nozzle()
         for raw in sequence(name, self.kind):
             line = code_part(raw)
             if not line:
+                continue
+            if line == b"{purge}":
+                yield from self._purge()
+                continue
+            if line == b"{depressurise}":
+                if self.kind != "plain":
+                    yield from self._depressurise()
                 continue
             line = line.replace(b"{nozzle}", str(nozzle).encode())
             code, params = words(line)
@@ -675,10 +770,30 @@ class Translator:
         self.tool = tool
         out.append(f"T{self._tool_nozzle()}".encode())
 
+    def _comment(self, raw: bytes, out: list[bytes]) -> None:
+        """The slicer's marks: a feature (;TYPE:), its width (;WIDTH:), a new layer."""
+        if raw.startswith(b";TYPE:"):
+            name = raw[6:].strip()
+            if self.stage is not None:
+                out.append(b";TYPE:" + name)
+            if self.by_width:
+                self.feature_nozzle = FEATURE_NOZZLE.get(
+                    name.decode("ascii", "replace").lower(), -1)
+        elif raw.startswith(b";WIDTH:"):
+            if self.by_width:
+                self.width = _width(raw[7:])
+        elif raw.startswith((b";LAYER_CHANGE", b";LAYER:")):
+            self.layer += 1
+
     def _nozzle_for_width(self, out: list[bytes]) -> None:
-        if self.width is None:
+        if self.layer == 1 and self.feature_nozzle >= 0:
+            wanted = 0  # the first layer with the fine nozzle
+        elif self.feature_nozzle >= 0:
+            wanted = self.feature_nozzle
+        elif self.width is not None:
+            wanted = 1 if self.width >= WIDE_MM else 0
+        else:
             return
-        wanted = 1 if self.width >= WIDE_MM else 0
         if wanted != self.nozzle:
             self._close(out)
             self.nozzle = wanted
@@ -727,7 +842,7 @@ class Translator:
                 self._book(extruder, owed)
             volume -= owed
         if volume > 1e-9:
-            if self.width is not None:
+            if self.by_width:
                 self._nozzle_for_width(out)
             if self.kind != "plain" and not self.valve_open:
                 self._open(out)

@@ -19,6 +19,11 @@ point:
   tail follows). The index wheel's level toggles every 256 microsteps of
   filament passing it.
 
+Where the plastic goes is watched by a deposition model where one is attached
+(`deposition`, robox.hardware.deposition): the valve's steps and the filament that
+leaves the drive's path are reported to it, and a shut head it reports full makes the
+drive slip.
+
 Faults: a switch stuck at a level (`stuck`), a wheel that does not turn
 (`wheel_slipping`), filament that runs out (a short `tail`), a hand feeding
 filament in (`feed_by_hand`, what starts an automatic load). The door's latch
@@ -33,7 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Final
+from typing import Any, Final
 
 from robox.packed import vec
 
@@ -170,6 +175,8 @@ class Machine:
     supply_24v: bool = True
     hardware_revision: int = 2
     motors_on: bool = False
+    # where plastic lands (robox.hardware.deposition), watched only where attached
+    deposition: Any = None
 
     # ------------------------------------------------------------ motors
     def step(self, axis: int, n: int) -> None:
@@ -183,6 +190,8 @@ class Machine:
             self.za += -n if self.gantry_rotation else n
         elif axis == B:
             self.b += n
+            if self.deposition is not None:
+                self.deposition.valve(self.b)
         else:
             self._drive(axis, n)
 
@@ -192,9 +201,18 @@ class Machine:
             return  # nothing under the drive
         nozzle = NOZZLE_STEPS[axis]
         moved = n
+        if n < 0 and self.deposition is not None:
+            self.deposition.drawn_back(axis, -n)
         if n > 0 and f.tip + n > nozzle:
             if self.nozzle_hot(axis):
-                self.extruded[axis] += f.tip + n - max(f.tip, nozzle)
+                out = f.tip + n - max(f.tip, nozzle)
+                dep = self.deposition
+                if dep is not None:
+                    taken = dep.fed(axis, out)
+                    if taken < out:  # a shut head full under pressure: the drive slips
+                        n -= out - taken
+                        out = taken
+                self.extruded[axis] += out
                 f.tail += n
                 f.tip = max(f.tip, nozzle)
                 self._turn_wheel(axis, n)

@@ -48,6 +48,10 @@ def new_unique_id() -> bytes:
     return b"RBXSIM" + os.urandom(5).hex().upper().encode()
 
 
+#: The B offsets a calibrated head carries: where its needles shut (robox.hardware.deposition).
+CALIBRATED_B_OFFSETS = (0.65, -0.70)
+
+
 def head_eeprom(calibrated: bool = False, type_code: str = "RBX01-SM") -> bytes:
     """A head of `type_code` (by default a single-material one).
 
@@ -61,7 +65,8 @@ def head_eeprom(calibrated: bool = False, type_code: str = "RBX01-SM") -> bytes:
               ("max_temperature", "300"), ("thermistor_beta", "3960"),
               ("thermistor_tcal", "1.0"), ("head_hours", "0")]
     if calibrated:
-        fields += [("nozzle0_b_offset", "0.65"), ("nozzle1_b_offset", "-0.70"),
+        fields += [("nozzle0_b_offset", f"{CALIBRATED_B_OFFSETS[0]:.2f}"),
+                   ("nozzle1_b_offset", f"{CALIBRATED_B_OFFSETS[1]:.2f}"),
                    ("nozzle0_last_filament_temperature", "210"),
                    ("nozzle1_last_filament_temperature", "210")]
     for name, value in fields:

@@ -14,6 +14,10 @@ printer counts a host as connected. While it prints:
 - a pause the job makes itself (M1) is resumed and noted; a pause an error
   makes ends the simulation, as it would stop the print.
 
+The reels' filament is loaded up to the nozzle in the feeds the job uses, and the
+machine's deposition model (robox.hardware.deposition) records where the plastic
+lands; robox.sim.quality judges the record (blobs, starved stretches) and draws it.
+
 Volumes are the filament the position object queued (signed: retractions
 count back), in cubic millimetres of the reel's diameter and multiplier.
 """
@@ -30,15 +34,18 @@ from pathlib import Path
 
 from robox.errors import UsageError
 from robox.fileio import write_atomically
+from robox.formats.heads import head_valves
 from robox.formats.protocol import PAUSE_MASK_CONNECTED, error_bits, error_names
 from robox.formats.sdcard import BLOCK_SIZE, make_id
 from robox.gcode import JobFile, Options, head_kind, job_file
 from robox.gcode.files import inspect
 from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
-from robox.hardware.machine import B, D, E, X, Y, Z
+from robox.hardware.deposition import Deposition
+from robox.hardware.machine import NOZZLE_MM, B, D, E, X, Y, Z
 from robox.offline import sdcard as card_images
 from robox.sim import images
 from robox.sim.printer import CARD_SIZE, VirtualPrinter, create_state
+from robox.sim.quality import Quality, find_lines
 
 #: The build plate, in the job's frame (its origin at the plate's front left corner).
 BED_MM = (210.0, 150.0)
@@ -63,6 +70,8 @@ class Setup:
     nozzle: int | None = None
     macros: Path | None = None
     raw: bool = False  # run the file as it is, even a slicer's
+    ejection: tuple[float, ...] | None = None  # mm3 per nozzle (None: the head's own)
+    valve: str = "automaker"  # how a slicer's file drives the valve: "automaker", "simple"
 
 
 @dataclass
@@ -79,6 +88,9 @@ class Watch:
     shut_mm: list[float] = field(default_factory=lambda: [0.0, 0.0])  # filament, per reel
     asked: list[float] = field(default_factory=lambda: [math.nan, math.nan])  # X, Y wanted
 
+    start_lines: int = 0  # the job's start sequence: its plastic is not judged
+    deposition: Deposition | None = None
+
     def attach(self) -> None:
         self.fw.position.on_move = self.on_move
 
@@ -90,6 +102,8 @@ class Watch:
     def on_move(self, moves: Sequence[float]) -> None:
         p = self.fw.position
         line = self.fw.job.line_number
+        if self.deposition is not None and line > self.start_lines:
+            self.deposition.judging = True
         dest, off, homed = p.destination, p.tool_offset, p.homing_done
         for i in (X, Y):
             wanted = dest[i] + off[i]
@@ -126,14 +140,17 @@ class Report:
     extent_mm: dict | None = None
     warnings: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
+    deposition: dict | None = None
+    quality: Quality | None = None  # the record, for a picture (not in the dict)
+    quality_worst: list = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {"file": self.file, "head": self.head, "translation": self.translation,
                 "lines": self.lines, "lines_run": self.lines_run,
                 "completed": self.completed, "print_time_s": round(self.print_time_s, 1),
                 "extruders": self.extruders, "peak_temperatures_c": self.peak_c,
-                "extent_mm": self.extent_mm, "warnings": self.warnings,
-                "errors": self.errors}
+                "extent_mm": self.extent_mm, "deposition": self.deposition,
+                "warnings": self.warnings, "errors": self.errors}
 
 
 def _area(diameter: float) -> float:
@@ -170,8 +187,36 @@ def _make_printer(state: Path, setup: Setup, kind: str, job: JobFile) -> Virtual
         card_images.put_stream(card, source, JOB_ID, job=True)
     create_state(state)  # the flash
     virtual = VirtualPrinter(state)
+    machine = virtual.hw.machine
+    for n, axis in enumerate((E, D)):
+        if n in _feeds_used(job, kind):
+            machine.insert_filament(axis, setup.remaining_m[n] * 1000.0, tip_mm=NOZZLE_MM)
+    Deposition(head_valves(setup.head, setup.ejection), (setup.filament_diameter,) * 2,
+               images.CALIBRATED_B_OFFSETS).attach(machine)
     virtual.settle()
     return virtual
+
+
+def _feeds_used(job: JobFile, kind: str) -> set[int]:
+    """The extruders a job feeds (0: E, 1: D): from its translation, or its text."""
+    if kind != "dual":
+        return {0}
+    if job.translation is not None:
+        volume = job.translation.volume_mm3
+        used = {n for n, name in enumerate("ED") if volume.get(name, 0.0) > 0.0}
+        return used or {0}
+    used = set()
+    with open(job.path, "rb") as f:
+        for raw in f:
+            line = raw.split(b";", 1)[0].upper()
+            if line.startswith((b"G0", b"G1")):
+                if b"E" in line[2:]:
+                    used.add(0)
+                if b"D" in line[2:]:
+                    used.add(1)
+                if len(used) == 2:
+                    break
+    return used or {0}
 
 
 @contextlib.contextmanager
@@ -181,7 +226,8 @@ def _prepared(source: str | os.PathLike, setup: Setup, kind: str
     options = None
     if not setup.raw and detected.from_slicer:
         options = Options(filament_diameter=(setup.filament_diameter,) * 2, head=setup.head,
-                          nozzle=setup.nozzle, macros=setup.macros)
+                          nozzle=setup.nozzle, macros=setup.macros, valve=setup.valve,
+                          ejection=setup.ejection)
     with job_file(source, options) as job, \
             tempfile.TemporaryDirectory(prefix="robox-simulate-") as state:
         virtual = _make_printer(Path(state), setup, kind, job)
@@ -202,8 +248,35 @@ def simulate(source: str | os.PathLike, setup: Setup,
         fw = virtual.firmware
         report = Report(str(source), setup.head.strip().upper(),
                         job.translation.as_dict() if job.translation else None, job.lines)
-        _print(virtual, Watch(fw, kind != "plain"), report, progress, setup, kind)
+        watch = Watch(fw, kind != "plain")
+        dep = virtual.hw.machine.deposition
+        if job.translation is not None and job.translation.start_lines and dep is not None:
+            watch.start_lines = job.translation.start_lines
+            watch.deposition = dep
+            dep.judging = False
+        _print(virtual, watch, report, progress, setup, kind)
+        _judge(virtual, report, job)
     return report
+
+
+def _judge(virtual: VirtualPrinter, report: Report, job: JobFile) -> None:
+    """The deposition figures, and the worst places with their job lines."""
+    machine = virtual.hw.machine
+    dep = machine.deposition
+    if dep is None:
+        return
+    dep.finish()
+    p = virtual.firmware.position
+    offsets = [(p._tool_float(n, 0) + p.pa["x_offset"], p._tool_float(n, 8) + p.pa["y_offset"],
+                p._tool_float(n, 16)) for n in range(2)]
+    quality = Quality(dep, offsets, BED_MM)
+    figures, worst = quality.figures()
+    find_lines(job.path, worst)
+    figures["pushed_into_shut_head_mm3"] = round(dep.shut_fed_mm3, 3)
+    figures["worst"] = [place.as_dict() for place in worst]
+    report.deposition = figures
+    report.quality = quality
+    report.quality_worst = worst
 
 
 def _print(virtual: VirtualPrinter, watch: Watch, report: Report,
@@ -246,7 +319,7 @@ def _print(virtual: VirtualPrinter, watch: Watch, report: Report,
             report.errors.append(f"still printing after {MAX_PRINT_S / 3600:.0f} hours "
                                  f"(line {job.line_number}); given up")
             break
-        if job.pause:
+        if job.pause and not job.aborting():  # (an abort under way ends the job)
             stopping = bits & PAUSE_MASK_CONNECTED & ~latched
             if stopping:
                 report.errors.append(f"the printer paused the job at line {job.line_number}"

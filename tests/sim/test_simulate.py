@@ -77,7 +77,11 @@ def test_extrusion_with_the_valve_shut_is_a_warning(tmp_path):
     data = report(job(tmp_path, text))
     warnings = [w for w in data["warnings"] if "valve shut" in w]
     assert len(warnings) == 1, data["warnings"]
-    assert warnings[0].startswith(f"{e_sum(EXAMPLE):.1f} mm3 pushed")
+    # at least the job's plastic: against the shut needle (simulate loads the filament)
+    # the head fills, the drive slips, and the firmware's slip retries push again
+    pushed = float(warnings[0].split(" mm3 pushed")[0])
+    assert pushed >= e_sum(EXAMPLE) - 0.05
+    assert data["deposition"]["pushed_into_shut_head_mm3"] >= 0.99
     first = next(n for n, raw in enumerate(
         (c for c in map(code_part, split_lines([text.encode()])) if c), 1)
         if b" E" in raw)
@@ -161,13 +165,13 @@ def test_dual_material_head_books_both_reels(tmp_path):
                                                             "slic3r)")
 def test_a_slic3r_file_simulated(tmp_path):
     """Slic3r's absolute E in mm: translated, then the printer queues the slicer's stated
-    filament plus the start sequence's 15 mm3 purge, with the valve open throughout."""
+    filament plus the start sequence's 15 mm3 purge, less the 3 mm3 the end draws back."""
     gcode = slice_small(tmp_path)
     stated_mm = float(gcode.read_text().split("; filament used = ")[1].split("mm")[0])
     data = report(gcode)
     assert data["translation"]["slicer"].lower().startswith("slic3r")
     assert data["completed"] and data["errors"] == [] and data["warnings"] == []
-    assert data["extruders"]["E"]["mm3"] == pytest.approx(stated_mm * AREA + 15, rel=0.005)
+    assert data["extruders"]["E"]["mm3"] == pytest.approx(stated_mm * AREA + 15 - 3, rel=0.005)
     extruding_x = []
     for raw in split_lines([gcode.read_bytes()]):
         line = code_part(raw)
@@ -175,4 +179,4 @@ def test_a_slic3r_file_simulated(tmp_path):
             extruding_x.append(float(words(line)[1]["X"]))
     low, high = data["extent_mm"]["X"]
     assert high == pytest.approx(max(extruding_x), abs=1e-3)
-    assert low == pytest.approx(10 + 50 / 26, abs=1e-3)  # the purge's first 2 mm segment
+    assert low == pytest.approx(10, abs=1e-3)  # the purge's refill, where its line starts

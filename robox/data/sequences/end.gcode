@@ -1,5 +1,6 @@
 ; The end of a job translated by robox-cli roboxise.
 G0 B0           ; valve closed
+{depressurise}
 G91
 G0 Z5           ; lift off the part
 G90

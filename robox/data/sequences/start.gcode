@@ -1,5 +1,7 @@
 ; The start of a job translated by robox-cli roboxise, for a head with a valve.
-; Heat from the reel, home, level the gantry, wait, select the nozzle, purge.
+; Heat from the reel, home, level the gantry, wait; then each nozzle the job uses is
+; selected, its feed pressurised against the shut needle (G36 feeds until the drive
+; slips) and a line purged along the front edge.
 M150            ; nozzle targets from the reel(s)
 M154            ; bed targets from the reel
 M104            ; nozzle heater(s) on, at the reel's temperature
@@ -15,9 +17,5 @@ G0 X113 Y75
 G28 Z
 M190            ; wait for the bed
 M109            ; and for the nozzle
-T{nozzle}       ; select the nozzle: its valve is found and homed
-G0 X10 Y10 Z0.3
-G0 B1
-G1 X60 E15 F1200 ; purge a line along the front edge
-G0 B0
+{purge}
 G0 Z1

@@ -1,0 +1,317 @@
+"""Where the plastic lands: the needle valve and the feeds, seen as plastic.
+
+A part of the simulated machine that only watches: attached to a `Machine`
+(`machine.deposition`), it hears of every microstep run the firmware makes and keeps a
+record of what those steps did to the plastic. Nothing the firmware reads changes,
+with one exception that is the physics of a shut valve (below); a machine without one
+attached (the served printer, the conformance replays) runs exactly as before and pays
+one `None` test per motor call.
+
+The model, per nozzle n (figures from `robox.formats.heads`):
+
+- The needle's opening is o = (B - seat) clamped to 0..1 for nozzle 0 (it opens on
+  the positive side of the B switch) and (seat - B) for nozzle 1, in the firmware's B
+  units (2,500 microsteps each); a head leaves calibration with its EEPROM's B offsets
+  at the seats, so the job's B 0 is shut and B 1 open.
+- Closing from o to o' pushes out (o - o') x ejection(n) mm3 where the head is; it
+  first takes up any void still below the needle. Opening from o to o' leaves a void
+  of (o' - o) x ejection(n), which the next plastic to reach the nozzle fills before
+  any leaves it.
+- Plastic fed (filament past the nozzle's end, `Machine._drive`) leaves through the
+  open nozzle of its feed, where the head is at that moment, void first. With every
+  nozzle of its feed shut it is held under pressure in the head; an opening lets it
+  out, void first. Past `PRESSURE_LIMIT_MM3` a shut head takes no more: the drive slips
+  (what G36 pressurising waits for); filament drawn back relieves it.
+
+Positions: the plastic of each event (a feed's steps, a needle's move) is laid along
+the line from where the head stood at the event before to where it stands now, when
+that is no further than `ANCHOR_MM` (the steps of one move interleave: X, Y, the feed
+and the needle step at their own moments along it) and no valve opened or shut since
+(the head travels between); otherwise the plastic lands where the head is. Plastic
+that comes while the head stands waits there: when the head moves on it is laid along
+with the next, unless it is a blob (`BLOB_MM3` or more) or a void took it (a refill):
+those stay a row of their own, a point.
+
+The record, in machine millimetres (`rows`), one row per stretch: start and end X and
+Y, nozzle height, mm3 deposited and mm3 driven into the nozzle for it (fed by the
+extruder or pushed by the needle), nozzle and path number; travels between plastic (-1
+for the path) as rows of their own. A path runs from an opening of a shut valve to its
+close (on a head without a valve: from the first plastic to a travel). A stretch that
+carries on straight from the last row (its joint within `STRAIGHT_MM` of the line) and
+delivers alike (the deposited share of what was driven within 5%) is merged into it, so
+the record grows with the job's paths and turns, not with its microsteps.
+"""
+
+from __future__ import annotations
+
+import math
+from array import array
+from dataclasses import dataclass, field
+
+from robox.formats.heads import E_FEED, HeadValves
+
+B_STEPS: float = 2500.0
+XY_STEPS: float = 133.7
+Z_STEPS: float = 6400.0
+E_STEPS: float = 747.0
+E_AXIS = 3
+D_AXIS = 4
+B_AXIS = 5
+#: mm3 a shut head takes under pressure before its drive slips.
+PRESSURE_LIMIT_MM3 = 1.0
+#: A stretch shorter than this (mm) is deposited standing still.
+STANDING_MM = 0.02
+#: Plastic left standing still that makes a blob (less is the tail of a move's steps).
+BLOB_MM3 = 0.01
+#: Plastic further than this (mm) from the last plastic lands where the head is; with
+#: a valve, a path's plastic is followed from its open (a thin line's feed steps are
+#: far apart), without one a travel is told only by the distance.
+ANCHOR_MM = 5.0
+ANCHOR_PLAIN_MM = 1.0
+#: How far (mm) a joint may stand off the line for two stretches to be merged.
+STRAIGHT_MM = 0.01
+#: Rows: x0, y0, x1, y1, z, deposited, driven, nozzle, path (-1: a travel).
+COLUMNS = ("x0", "y0", "x1", "y1", "z", "deposited", "driven", "nozzle", "path")
+
+
+@dataclass
+class Path:
+    number: int
+    nozzle: int
+    z: float
+    start: tuple[float, float]
+    end: tuple[float, float] = (math.nan, math.nan)
+    closed: bool = False
+    judged: bool = True  # False: opened while the record was told not to judge
+
+
+@dataclass
+class Deposition:
+    """The record of where plastic went (see the module's docstring)."""
+
+    valves: HeadValves
+    diameters_mm: tuple[float, float]  # filament of feed E, feed D
+    seats: tuple[float, float] = (0.0, 0.0)  # B where nozzle 0, nozzle 1 shut
+    rows: dict[str, array] = field(default_factory=lambda: {c: array("d") for c in COLUMNS})
+    paths: list[Path] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        nozzles = len(self.valves.feeds)
+        self.opening = [0.0] * nozzles if self.valves.has_valve else [1.0] * nozzles
+        self.void = [0.0] * nozzles
+        self.pressure = {E_AXIS: 0.0, D_AXIS: 0.0}
+        self.feed_axis = [E_AXIS if f == E_FEED else D_AXIS for f in self.valves.feeds]
+        self.mm3_per_step = {
+            axis: math.pi * d * d / 4.0 / E_STEPS
+            for axis, d in ((E_AXIS, self.diameters_mm[0]), (D_AXIS, self.diameters_mm[1]))}
+        self.path_of = [-1] * nozzles  # the open path of each nozzle
+        self.b = 0
+        self._anchor = (0.0, 0.0)  # where the last plastic left
+        self.judging = True  # whether paths opened now count (a purge before a job: no)
+        self._pending = [0.0, 0.0, 0.0]  # deposited, driven, swallowed since the head moved
+        self._nozzle = self._path = -1
+        self.shut_fed_mm3 = 0.0  # fed into a head with its feed's nozzles shut
+        self.slipped_steps = 0
+
+    # ------------------------------------------------------------ machine calls
+    def attach(self, machine) -> None:
+        """Start watching `machine` (its valve and head where they are now)."""
+        self.machine = machine
+        self.b = machine.b
+        self._anchor = (machine.x / XY_STEPS, machine.y / XY_STEPS)
+        self._set_openings(machine.b, record=False)
+        machine.deposition = self
+
+    def fed(self, axis: int, steps: int) -> int:
+        """`steps` of filament reach the nozzle end of feed `axis`; how many it takes
+        (fewer when a shut head is full)."""
+        mm3 = steps * self.mm3_per_step[axis]
+        for n, feed in enumerate(self.feed_axis):
+            if feed == axis and self.opening[n] > 0.0:
+                self._out(n, mm3, mm3)
+                return steps
+        room = PRESSURE_LIMIT_MM3 - self.pressure[axis]
+        if mm3 > room:
+            taken = max(0, int(room / self.mm3_per_step[axis]))
+            self.slipped_steps += steps - taken
+            steps = taken
+            mm3 = taken * self.mm3_per_step[axis]
+        self.pressure[axis] += mm3
+        self.shut_fed_mm3 += mm3
+        return steps
+
+    def drawn_back(self, axis: int, steps: int) -> None:
+        """The feed `axis` draws its filament back: what the head held under pressure
+        goes with it."""
+        held = self.pressure[axis]
+        if held > 0.0:
+            self.pressure[axis] = max(0.0, held - steps * self.mm3_per_step[axis])
+
+    def valve(self, b: int) -> None:
+        """The valve's motor now stands at `b` microsteps."""
+        self.b = b
+        self._set_openings(b, record=True)
+
+    # ------------------------------------------------------------ the plastic
+    def _set_openings(self, b: int, record: bool) -> None:
+        if not self.valves.has_valve:
+            return
+        units = b / B_STEPS
+        for n in range(len(self.opening)):
+            o = units - self.seats[0] if n == 0 else self.seats[1] - units
+            o = 0.0 if o < 0.0 else 1.0 if o > 1.0 else o
+            before = self.opening[n]
+            if o == before:
+                continue
+            self.opening[n] = o
+            if not record:
+                continue
+            ejection = self.valves.ejection_mm3[n]
+            if o < before:  # closing: the needle pushes plastic out
+                push = (before - o) * ejection
+                self._out(n, push, push)
+                if o == 0.0:
+                    self._close_path(n)
+            else:  # opening: a void, then what the head held under pressure
+                if before == 0.0:
+                    self._open_path(n)
+                self.void[n] += (o - before) * ejection
+                axis = self.feed_axis[n]
+                held = self.pressure[axis]
+                if held > 0.0:
+                    self.pressure[axis] = 0.0
+                    self._out(n, held, held)
+
+    def _out(self, n: int, mm3: float, driven: float) -> None:
+        """`mm3` reaches nozzle n's outlet: it fills the void first, the rest leaves,
+        laid from the last plastic's place to the head's."""
+        void = self.void[n]
+        swallowed = mm3 if mm3 < void else void
+        self.void[n] = void - swallowed
+        m = self.machine
+        here = (m.x / XY_STEPS, m.y / XY_STEPS)
+        start = self._anchor
+        reach = ANCHOR_MM if self.valves.has_valve else ANCHOR_PLAIN_MM
+        if start != here and (abs(here[0] - start[0]) > reach
+                              or abs(here[1] - start[1]) > reach):
+            self._standing()  # what was left where the head stood
+            if start[0] != math.inf:
+                self._row(start, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)
+            if not self.valves.has_valve:  # without a valve, a travel ends the paths
+                for k in range(len(self.path_of)):
+                    self._close_path(k)
+            start = here
+        if self.path_of[n] < 0:  # plastic on a head without a valve starts a path
+            self._open_path(n)
+        self._anchor = here
+        self._nozzle, self._path = n, self.path_of[n]
+        self._pending[0] += mm3 - swallowed
+        self._pending[1] += driven
+        self._pending[2] += swallowed
+        if start == here:
+            return  # the head has not moved since the last plastic: it waits
+        pending = self._pending
+        if pending[2] > swallowed or pending[0] - (mm3 - swallowed) >= BLOB_MM3:
+            # the plastic before this event was left standing (a refill, a blob)
+            pending[0] -= mm3 - swallowed
+            pending[1] -= driven
+            pending[2] -= swallowed
+            self._anchor = start
+            self._standing()
+            self._anchor = here
+            pending[0] += mm3 - swallowed
+            pending[1] += driven
+            pending[2] += swallowed
+        z = m.nozzle_height() / Z_STEPS
+        dep, drv, swallowed = pending
+        pending[0] = pending[1] = pending[2] = 0.0
+        path = self.path_of[n]
+        if swallowed > 0.0 and dep > 0.0:
+            # the void takes the stretch's first plastic: split where it is full
+            f = swallowed / (swallowed + dep)
+            mid = (start[0] + (here[0] - start[0]) * f, start[1] + (here[1] - start[1]) * f)
+            self._row(start, mid, z, 0.0, drv * f, n, path)
+            self._row(mid, here, z, dep, drv * (1.0 - f), n, path)
+        else:
+            self._row(start, here, z, dep, drv, n, path)
+
+    def _standing(self) -> None:
+        """The plastic that waited at the last place: a row of its own where it counts
+        (a blob, a refill the void took), otherwise added to the row before."""
+        dep, drv, swallowed = self._pending
+        if drv <= 0.0 and dep <= 0.0:
+            return
+        self._pending[0] = self._pending[1] = self._pending[2] = 0.0
+        r = self.rows
+        z = self.machine.nozzle_height() / Z_STEPS
+        if dep < BLOB_MM3 and swallowed <= 0.0 and len(r["x0"]) and \
+                r["path"][-1] == self._path and (r["x1"][-1], r["y1"][-1]) == self._anchor:
+            r["deposited"][-1] += dep
+            r["driven"][-1] += drv
+            return
+        self._row(self._anchor, self._anchor, z, dep, drv, self._nozzle, self._path)
+
+    def finish(self) -> None:
+        """Close the record: the plastic still waiting where the head stands."""
+        self._standing()
+
+    def _open_path(self, n: int) -> None:
+        m = self.machine
+        self._standing()
+        here = (m.x / XY_STEPS, m.y / XY_STEPS)
+        last = self._anchor
+        if self.valves.has_valve and last[0] != math.inf and last != here:
+            self._row(last, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)  # travel
+        self._anchor = (math.inf, math.inf)  # a new path: nothing to lay plastic from
+        self.path_of[n] = len(self.paths)
+        self.paths.append(Path(len(self.paths), n, m.nozzle_height() / Z_STEPS,
+                               (m.x / XY_STEPS, m.y / XY_STEPS), judged=self.judging))
+
+    def _close_path(self, n: int) -> None:
+        number = self.path_of[n]
+        if number >= 0:
+            m = self.machine
+            path = self.paths[number]
+            path.end = (m.x / XY_STEPS, m.y / XY_STEPS)
+            path.closed = True
+        self.path_of[n] = -1
+
+    def _row(self, start: tuple[float, float], end: tuple[float, float], z: float,
+             dep: float, drv: float, nozzle: int, path: int) -> None:
+        r = self.rows
+        x0, y0 = start
+        x1, y1 = end
+        if len(r["x0"]) and r["path"][-1] == path and r["nozzle"][-1] == nozzle \
+                and r["x1"][-1] == x0 and r["y1"][-1] == y0 and r["z"][-1] == z:
+            px, py = r["x0"][-1], r["y0"][-1]
+            if _straight(px, py, x0, y0, x1, y1) and \
+                    _alike(r["deposited"][-1], r["driven"][-1], dep, drv):
+                r["x1"][-1], r["y1"][-1] = x1, y1
+                r["deposited"][-1] += dep
+                r["driven"][-1] += drv
+                return
+        for name, value in zip(COLUMNS, (x0, y0, x1, y1, z, dep, drv, float(nozzle),
+                                         float(path)), strict=True):
+            r[name].append(value)
+
+
+def _straight(px: float, py: float, jx: float, jy: float, qx: float, qy: float) -> bool:
+    """Whether the joint j stands within STRAIGHT_MM of the line from p to q, between
+    them, or the three are one point (standing plastic stays one row)."""
+    dx, dy = qx - px, qy - py
+    length = math.hypot(dx, dy)
+    if length < STANDING_MM:
+        return math.hypot(jx - px, jy - py) < STANDING_MM
+    if math.hypot(jx - px, jy - py) < STANDING_MM:
+        return False  # standing plastic, then a move: two rows
+    if (jx - px) * dx + (jy - py) * dy <= 0.0 or (qx - jx) * dx + (qy - jy) * dy < 0.0:
+        return False
+    return abs((jx - px) * dy - (jy - py) * dx) <= STRAIGHT_MM * length
+
+
+
+def _alike(dep0: float, drv0: float, dep1: float, drv1: float) -> bool:
+    """Whether two stretches delivered the same share of what was driven (to 5%)."""
+    share0 = dep0 / drv0 if drv0 > 0.0 else 1.0
+    share1 = dep1 / drv1 if drv1 > 0.0 else 1.0
+    return abs(share0 - share1) <= 0.05

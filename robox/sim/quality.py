@@ -1,0 +1,228 @@
+"""Print quality from the deposition record: blobs, starved stretches, and a picture.
+
+The record (`robox.hardware.deposition`) is in machine millimetres per nozzle; here
+each row is brought into the job's frame (less the nozzle's offsets, as the firmware
+adds them) and only what lands on the build plate is judged: a purge over the bin at
+the plate's front edge is meant to be a blob.
+
+- A blob: plastic left while the head stood still (a row shorter than
+  `STANDING_MM`): a valve shut or opened standing, plastic held under pressure let out.
+- A starved stretch: a moving row that laid down less than `STARVED` of the plastic
+  driven into the nozzle for it (fed by the extruder, pushed by the needle): what a
+  void below an opened needle swallows, or a needle shutting into a void.
+- Paths opened before the job proper (the start sequence's purge) are left out.
+- Layers: the nozzle heights of the plastic, nearest first; heights within
+  `LAYER_MERGE_MM` of each other (a levelled bed's washout) are one layer, numbered
+  from 1.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass
+
+from robox.hardware.deposition import BLOB_MM3, STANDING_MM, Deposition
+
+STARVED = 0.8
+LAYER_MERGE_MM = 0.04
+EDGE_MM = 0.5  # plastic this far beyond the plate's edge still counts as on it
+WORST = 5
+
+
+@dataclass
+class Place:
+    kind: str  # "blob" or "starved"
+    layer: int
+    x: float
+    y: float
+    z: float
+    mm3: float  # the blob's volume, or the plastic a starved stretch lacks
+    length_mm: float = 0.0
+    line: int | None = None
+
+    def as_dict(self) -> dict:
+        return {"kind": self.kind, "layer": self.layer, "line": self.line,
+                "x": round(self.x, 2), "y": round(self.y, 2), "mm3": round(self.mm3, 3),
+                "length_mm": round(self.length_mm, 2)}
+
+
+class Quality:
+    """The deposition record in the job's frame, and the figures drawn from it."""
+
+    def __init__(self, dep: Deposition, offsets: list[tuple[float, float, float]],
+                 bed: tuple[float, float]):
+        r = dep.rows
+        self.rows = []  # (x0, y0, x1, y1, z, deposited, driven, nozzle, path)
+        for i in range(len(r["x0"])):
+            n = int(r["nozzle"][i])
+            ox, oy, oz = offsets[n] if n >= 0 else offsets[0]
+            self.rows.append((r["x0"][i] - ox, r["y0"][i] - oy, r["x1"][i] - ox,
+                              r["y1"][i] - oy, r["z"][i] - oz, r["deposited"][i],
+                              r["driven"][i], n, int(r["path"][i])))
+        self.bed = bed
+        self.paths = [p for p in dep.paths if p.judged]
+        unjudged = {p.number for p in dep.paths if not p.judged}
+        self.rows = [row for row in self.rows if row[8] not in unjudged]
+        self.offsets = offsets
+        self.layers = self._layers()
+
+    def on_plate(self, x: float, y: float) -> bool:
+        return -EDGE_MM <= x <= self.bed[0] + EDGE_MM and -EDGE_MM <= y <= self.bed[1] + EDGE_MM
+
+    def _layers(self) -> list[float]:
+        heights = sorted({round(row[4], 2) for row in self.rows
+                          if row[5] > 0.0 and self.on_plate(row[2], row[3])})
+        layers: list[float] = []
+        for z in heights:
+            if not layers or z - layers[-1] > LAYER_MERGE_MM:
+                layers.append(z)
+        return layers
+
+    def layer_of(self, z: float) -> int:
+        """The layer (from 1) a height belongs to; 0 below the first."""
+        best = 0
+        for i, height in enumerate(self.layers):
+            if z >= height - LAYER_MERGE_MM:
+                best = i + 1
+        return best
+
+    def figures(self) -> tuple[dict, list[Place]]:
+        blob = starved_mm = deposited = driven = 0.0
+        places: list[Place] = []
+        run: Place | None = None  # the starved stretch being followed
+        last_path = None
+        for x0, y0, x1, y1, z, dep, drv, _n, path in self.rows:
+            if path < 0 or not self.on_plate(x1, y1):
+                continue
+            deposited += dep
+            driven += drv
+            length = math.hypot(x1 - x0, y1 - y0)
+            if length < STANDING_MM:
+                if dep >= BLOB_MM3:
+                    blob += dep
+                    places.append(Place("blob", self.layer_of(z), x1, y1, z, dep))
+                continue
+            if dep < STARVED * drv:
+                starved_mm += length
+                if run is not None and last_path == path and (run.x, run.y) == (x0, y0):
+                    run.mm3 += drv - dep
+                    run.length_mm += length
+                    run.x, run.y = x1, y1
+                else:
+                    run = Place("starved", self.layer_of(z), x1, y1, z, drv - dep, length)
+                    places.append(run)
+                last_path = path
+            else:
+                run = None
+        ends = sum(1 for p in self.paths if p.closed and self.on_plate(
+            p.end[0] - self.offsets[p.nozzle][0], p.end[1] - self.offsets[p.nozzle][1]))
+        opens = sum(1 for p in self.paths if self.on_plate(
+            p.start[0] - self.offsets[p.nozzle][0], p.start[1] - self.offsets[p.nozzle][1]))
+        places.sort(key=lambda p: -p.mm3)
+        worst = [p for p in places if p.mm3 > 1e-4][:WORST]
+        figures = {
+            "path_ends": ends, "opens": opens, "layers": len(self.layers),
+            "deposited_mm3": round(deposited, 2), "driven_mm3": round(driven, 2),
+            "blob_mm3": round(blob, 3), "blobs": sum(1 for p in places if p.kind == "blob"),
+            "starved_mm": round(starved_mm, 2),
+            "blob_mm3_per_path_end": round(blob / ends, 4) if ends else 0.0,
+            "starved_mm_per_open": round(starved_mm / opens, 4) if opens else 0.0,
+        }
+        return figures, worst
+
+
+_MOVE = re.compile(r"^\s*G[01](?!\d)", re.I)
+_WORD = re.compile(r"([XYZ])\s*([-+]?\d*\.?\d+)", re.I)
+
+
+def find_lines(job: str | os.PathLike, places: list[Place]) -> None:
+    """Each place's line: the job's move that ends nearest to it (its layer's height
+    weighed heavily), found in one pass over the job."""
+    if not places:
+        return
+    best = [math.inf] * len(places)
+    pos = {"X": 0.0, "Y": 0.0, "Z": 0.0}
+    relative = False
+    # (text with universal newlines: a job's lines may end in CR, CR LF or LF)
+    with open(job, encoding="latin-1", newline=None) as f:
+        for number, raw in enumerate(f, 1):
+            line = raw.split(";", 1)[0].lstrip().upper()
+            if line.startswith("G91"):
+                relative = True
+            elif line.startswith("G90"):
+                relative = False
+            if not _MOVE.match(line):
+                continue
+            for letter, value in _WORD.findall(line):
+                pos[letter] = pos[letter] + float(value) if relative else float(value)
+            x, y, z = pos["X"], pos["Y"], pos["Z"]
+            for i, p in enumerate(places):
+                d = (x - p.x) ** 2 + (y - p.y) ** 2 + 100.0 * (z - p.z) ** 2
+                if d < best[i]:
+                    best[i] = d
+                    p.line = number
+
+
+def plot(quality: Quality, target: str | os.PathLike, layer: int | None,
+         worst: list[Place], title: str) -> int:
+    """Draw a layer from above into a PNG; returns the layer drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from matplotlib.colors import LinearSegmentedColormap, Normalize
+
+    if not quality.layers:
+        raise ValueError("no plastic on the build plate: nothing to draw")
+    if layer is None:
+        layer = worst[0].layer if worst and worst[0].layer else 1
+    if not 1 <= layer <= len(quality.layers):
+        raise ValueError(f"layer {layer}: the print has layers 1 to {len(quality.layers)}")
+    lines, ratios, travels, blobs = [], [], [], []
+    for x0, y0, x1, y1, z, dep, drv, _n, path in quality.rows:
+        if quality.layer_of(z) != layer:
+            continue
+        if path < 0 or (dep == 0.0 and drv == 0.0):
+            travels.append(((x0, y0), (x1, y1)))
+        elif math.hypot(x1 - x0, y1 - y0) < STANDING_MM:
+            if dep >= BLOB_MM3 and quality.on_plate(x1, y1):
+                blobs.append((x1, y1, dep))
+        else:
+            lines.append(((x0, y0), (x1, y1)))
+            ratios.append(dep / drv if drv > 0 else 2.0)
+    fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
+    ax.add_collection(LineCollection(travels, colors="#b0b0b0", linewidths=0.4,
+                                     alpha=0.5, label="travel"))
+    # red where starved (below 0.8), green as meant, blue where more than meant
+    cmap = LinearSegmentedColormap.from_list(
+        "deposit", [(0.0, "#c00000"), (0.3, "#ff8c00"), (0.4, "#e0c000"), (0.5, "#20a040"),
+                    (0.6, "#20a040"), (1.0, "#2050ff")])
+    coloured = LineCollection(lines, cmap=cmap, norm=Normalize(0.0, 2.0), linewidths=1.6)
+    coloured.set_array([min(r, 2.0) for r in ratios])
+    ax.add_collection(coloured)
+    fig.colorbar(coloured, ax=ax, shrink=0.7,
+                 label="deposited / driven into the nozzle (1: as meant; red: starved)")
+    if blobs:
+        ax.scatter([b[0] for b in blobs], [b[1] for b in blobs],
+                   s=[30 + 400 * b[2] for b in blobs], facecolors="none",
+                   edgecolors="#d00000", linewidths=1.2,
+                   label=f"blobs ({len(blobs)}, {sum(b[2] for b in blobs):.2f} mm3)")
+        ax.legend(loc="upper right")
+    points = [p for seg in lines + travels for p in seg] + [(b[0], b[1]) for b in blobs]
+    if points:
+        xs, ys = [p[0] for p in points], [p[1] for p in points]
+        pad = 2.0
+        ax.set_xlim(min(xs) - pad, max(xs) + pad)
+        ax.set_ylim(min(ys) - pad, max(ys) + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("X (mm)")
+    ax.set_ylabel("Y (mm)")
+    ax.set_title(f"{title}\nlayer {layer} of {len(quality.layers)} "
+                 f"(Z {quality.layers[layer - 1]:.2f} mm)")
+    fig.tight_layout()
+    fig.savefig(target, format="png")
+    plt.close(fig)
+    return layer
