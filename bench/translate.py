@@ -5,7 +5,8 @@ Usage: python bench/translate.py [--quick] [--memory]
 Slices the bench's star tower with slic3r as a user would (absolute E in mm,
 no volumetric E; cached in bench/.cache/), then times, in one run: a plain
 line-by-line read of the file (`for line in f: line.split()`) and
-`roboxise_file` writing the Robox job. Prints lines/s, MB/s and the ratio.
+`roboxise_file` writing the Robox job, with AutoMaker's valve (the default) and with
+`--valve simple`. Prints lines/s, MB/s and the ratios.
 With --memory, also the peak resident memory of `robox-cli roboxise` and of
 `robox-cli --device sim-once:DIR send-job` (upload only) on that file and on a
 file about 50 MB long (the same layers over and over), each in its own process.
@@ -30,18 +31,21 @@ def main() -> None:
     path = sliced_gcode("--quick" in sys.argv, "tower-user", ())  # E in mm, absolute
     size = path.stat().st_size
     rate = plain_loop_rate(path)
+    took = {}
     with tempfile.TemporaryDirectory() as tmp:
-        start = time.perf_counter()
-        summary = roboxise_file(path, Path(tmp) / "job.robox", Options())
-        took = time.perf_counter() - start
+        for valve in ("automaker", "simple"):
+            start = time.perf_counter()
+            summary = roboxise_file(path, Path(tmp) / "job.robox", Options(valve=valve))
+            took[valve] = time.perf_counter() - start
     lines = summary.lines_in
     plain = lines / rate
     print(f"slic3r G-code {path.name}: {size / 1e6:.2f} MB, {lines} lines "
           f"({summary.e_mode} E, {summary.volume_mm3['E']:.0f} mm3, "
           f"{summary.valve_cycles} valve openings)")
     print(f"  plain read:  {lines / plain:,.0f} lines/s, {size / 1e6 / plain:.1f} MB/s")
-    print(f"  roboxise:    {lines / took:,.0f} lines/s, {size / 1e6 / took:.2f} MB/s")
-    print(f"  ratio roboxise / plain read: {plain / took:.4f}")
+    for valve, seconds in took.items():
+        print(f"  roboxise --valve {valve + ':':10} {lines / seconds:,.0f} lines/s, "
+              f"{size / 1e6 / seconds:.2f} MB/s; ratio to the plain read {plain / seconds:.4f}")
     if "--memory" in sys.argv:
         memory(path)
 

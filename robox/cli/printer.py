@@ -11,7 +11,13 @@ from pathlib import Path
 import click
 
 from robox.cli.common import confirm, emit_json, json_option, yes_option
-from robox.cli.gcode import macros_option, nozzle_option
+from robox.cli.gcode import (
+    ejection_option,
+    macros_option,
+    nozzle_option,
+    parse_ejection,
+    valve_option,
+)
 from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.firmware import image_revision
 from robox.formats.protocol import error_names
@@ -159,11 +165,13 @@ def files_cmd(ctx, as_json: bool) -> None:
               help="mm; default: from the printer's reel, else 1.75.")
 @nozzle_option
 @macros_option
+@valve_option
+@ejection_option
 @json_option
 @click.pass_context
 def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, raw: bool,
                  filament_diameter: float | None, nozzle: int | None, macros: Path | None,
-                 as_json: bool) -> None:
+                 valve: str, ejection: str | None, as_json: bool) -> None:
     """Upload FILE to the SD card and print it (printing starts after the second chunk).
 
     A slicer's G-code (PrusaSlicer, Slic3r, Cura, OrcaSlicer, ...: a slicer's header, or
@@ -171,12 +179,14 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
     (see `roboxise`); any other file goes as it is."""
     if file_id is not None:
         make_id(file_id)  # refuses an empty or non-ASCII id before the printer is opened
+    volumes = parse_ejection(ejection)
     detected = inspect(file)
     quiet = as_json or not sys.stderr.isatty()
     with device(ctx) as printer:
         options = None
         if not raw and detected.from_slicer:
-            options = printer_options(printer, filament_diameter, nozzle, macros)
+            options = printer_options(printer, filament_diameter, nozzle, macros, valve,
+                                      volumes)
         with job_file(file, options) as job:
             if job.translation is not None and not as_json:
                 t = job.translation
@@ -261,7 +271,8 @@ def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
 
 
 def printer_options(printer, filament_diameter: float | None, nozzle: int | None,
-                     macros: Path | None) -> Options:
+                    macros: Path | None, valve: str = "automaker",
+                    ejection: tuple[float, ...] | None = None) -> Options:
     """Translation options from the printer's head and reels, and the user's."""
     eeproms = printer.status().eeproms
     head = HEAD_DEFAULT
@@ -274,7 +285,7 @@ def printer_options(printer, filament_diameter: float | None, nozzle: int | None
             value = printer.read_eeprom_fields(reel)["filament_diameter"]
         diameters.append(float(value) if value else filament_diameter or DEFAULT_DIAMETER)
     return Options(filament_diameter=(diameters[0], diameters[1]), head=head, nozzle=nozzle,
-                   macros=macros)
+                   macros=macros, valve=valve, ejection=ejection)
 
 
 def _reels(printer) -> dict:

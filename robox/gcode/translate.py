@@ -159,6 +159,9 @@ class Detected:
 def detect(head: bytes, tail: bytes = b"") -> Detected:
     """What the file is, from its first and last bytes."""
     found = Detected()
+    # a line may end in CR alone (a Robox job as it goes to the card, roboxise's output)
+    head = head.replace(b"\r", b"\n")
+    tail = tail.replace(b"\r", b"\n")
     top = head[:8192]
     for name, pattern in SLICERS:
         if pattern.search(top):
@@ -424,6 +427,8 @@ class Translator:
         self.stage: ValveStage | None = None
         if options.valve == "automaker" and self.kind != "plain" and not detected.robox:
             self.stage = ValveStage(head_valves(options.head, options.ejection))
+            self.stage.nozzle = self._tool_nozzle()
+            self.stage.word = b" " + self._extruder().encode()
         d = options.filament_diameter
         self.area_e = math.pi * d[0] * d[0] / 4.0  # mm2 of filament, for E and for D
         self.area_d = math.pi * d[1] * d[1] / 4.0

@@ -145,6 +145,7 @@ class ValveStage:
         self.selected = False  # a T since the last open (the valve measured)
         self.tool_changed = False  # (dual-material heads: M109 before the next open)
         self.owed: dict[int, float] = {}  # per nozzle: mm3 its next refill leaves out
+        self.pending_tool: Step | None = None  # a T waiting for the travel it goes with
 
     # ------------------------------------------------------------ input
     def feed(self, line: bytes) -> list[bytes]:
@@ -184,6 +185,9 @@ class ValveStage:
         out: list[bytes] = []
         if self.is_open:
             self._close(out)
+        if self.pending_tool is not None:
+            self.buf.append(self.pending_tool)
+            self.pending_tool = None
         self._flush(out, len(self.buf))
         return out
 
@@ -233,6 +237,16 @@ class ValveStage:
             self._add(Step(OTHER, line))
             self.x, self.y = x, y
             return
+        if self.pending_tool is not None and has_xy and e is None and b" Z" not in head:
+            # a T the slicer wrote before its travel: the two as one (`T1 X.. Y..`)
+            tool, self.pending_tool = self.pending_tool, None
+            tool.line += head[2:]
+            self.buf.append(tool)
+            if f:
+                self.buf.append(Step(OTHER, b"G1 F" + f))
+            self.counts.tool_changes_in_travel += 1
+            self.x, self.y = x, y
+            return
         step = Step(TRAVEL, head, self.x, self.y, x, y, feed=f,
                     feed_in_force=self.feed_in_force, feature=self.feature, rest=rest)
         if e is not None and e > EPSILON and self.is_open:
@@ -259,7 +273,8 @@ class ValveStage:
         self._merge_tool(Step(TOOL, b"T%d" % tool))
 
     def _merge_tool(self, tool: Step) -> None:
-        """A T into the last travel since the close (`T1 X.. Y..`), or where it is."""
+        """A T into the last travel since the close (`T1 X.. Y..`), or the next travel
+        before the open, or just before the open."""
         for k in range(len(self.buf) - 1, -1, -1):
             s = self.buf[k]
             if s.kind != TRAVEL or b" Z" in s.line:
@@ -271,7 +286,9 @@ class ValveStage:
                     self.buf.insert(k + 1, Step(OTHER, b"G1 F" + s.feed))
                 self.counts.tool_changes_in_travel += 1
                 return
-        self.buf.append(tool)
+        if self.pending_tool is not None:
+            self.buf.append(self.pending_tool)
+        self.pending_tool = tool
 
     # ------------------------------------------------------------ open and close
     def _open(self, out: list[bytes]) -> None:
@@ -281,6 +298,9 @@ class ValveStage:
             self._merge_tool(Step(TOOL, b"T%d" % self.nozzle))
         self.selected = False
         self.opens += 1
+        if self.pending_tool is not None:
+            self.buf.append(self.pending_tool)
+            self.pending_tool = None
         self._flush(out, len(self.buf))
         if self.tool_changed and self.valves.kind == "dual":
             self.buf.append(Step(OTHER, b"M109"))
@@ -320,6 +340,7 @@ class ValveStage:
             o = self.buf[self.open_at]
             o.b = opening
             o.e = self._refill(opening * ej)
+            o.word = self.buf[moves[0]].word if moves else self.word
         if excess > EPSILON:
             # the stroke pushed out more than the path's plastic: the next open of this
             # nozzle refills that much less (AutoMaker's balance: the job's volume stays
@@ -508,7 +529,7 @@ class ValveStage:
             return
         if self.open_at >= 0 and self.open_at < k:
             o = self.buf[self.open_at]
-            o.b, o.e = 1.0, self._refill(self._ejection())
+            o.b, o.e, o.word = 1.0, self._refill(self._ejection()), self.word
             self.open_at = -1
         self._flush(out, k)
 
@@ -525,7 +546,7 @@ class ValveStage:
                         feed = m.group(1)
                 continue
             if kind == OPEN:
-                out.append(b"G1 B" + _fmt(s.b) + b" E" + _fmt(s.e) + b" F" + REFILL_FEED
+                out.append(b"G1 B" + _fmt(s.b) + s.word + _fmt(s.e) + b" F" + REFILL_FEED
                            if s.e > EPSILON else b"G0 B" + _fmt(s.b))
                 if s.e > EPSILON:
                     feed = REFILL_FEED

@@ -26,11 +26,11 @@ The model, per nozzle n (figures from `robox.formats.heads`):
 Positions: the plastic of each event (a feed's steps, a needle's move) is laid along
 the line from where the head stood at the event before to where it stands now, when
 that is no further than `ANCHOR_MM` (the steps of one move interleave: X, Y, the feed
-and the needle step at their own moments along it) and no valve opened or shut since
-(the head travels between); otherwise the plastic lands where the head is. Plastic
+and the needle step at their own moments along it); a path's first plastic is laid from
+where its valve opened; otherwise the plastic lands where the head is. Plastic
 that comes while the head stands waits there: when the head moves on it is laid along
-with the next, unless it is a blob (`BLOB_MM3` or more) or a void took it (a refill):
-those stay a row of their own, a point.
+with the next, unless it is a blob (`BLOB_MM3` or more) or a void took it while the
+head stood (a refill): those stay a row of their own, a point.
 
 The record, in machine millimetres (`rows`), one row per stretch: start and end X and
 Y, nozzle height, mm3 deposited and mm3 driven into the nozzle for it (fed by the
@@ -59,8 +59,9 @@ D_AXIS = 4
 B_AXIS = 5
 #: mm3 a shut head takes under pressure before its drive slips.
 PRESSURE_LIMIT_MM3 = 1.0
-#: A stretch shorter than this (mm) is deposited standing still.
-STANDING_MM = 0.02
+#: A stretch shorter than this (mm) that leaves BLOB_MM3 or more is plastic left with
+#: the head standing (the steps of one move end within a microstep or two of each other).
+STANDING_MM = 0.05
 #: Plastic left standing still that makes a blob (less is the tail of a move's steps).
 BLOB_MM3 = 0.01
 #: Plastic further than this (mm) from the last plastic lands where the head is; with
@@ -109,6 +110,7 @@ class Deposition:
         self._anchor = (0.0, 0.0)  # where the last plastic left
         self.judging = True  # whether paths opened now count (a purge before a job: no)
         self._pending = [0.0, 0.0, 0.0]  # deposited, driven, swallowed since the head moved
+        self._pending_z = 0.0  # the nozzle's height when it came
         self._nozzle = self._path = -1
         self.shut_fed_mm3 = 0.0  # fed into a head with its feed's nozzles shut
         self.slipped_steps = 0
@@ -205,23 +207,22 @@ class Deposition:
             self._open_path(n)
         self._anchor = here
         self._nozzle, self._path = n, self.path_of[n]
-        self._pending[0] += mm3 - swallowed
-        self._pending[1] += driven
-        self._pending[2] += swallowed
-        if start == here:
-            return  # the head has not moved since the last plastic: it waits
         pending = self._pending
-        if pending[2] > swallowed or pending[0] - (mm3 - swallowed) >= BLOB_MM3:
-            # the plastic before this event was left standing (a refill, a blob)
-            pending[0] -= mm3 - swallowed
-            pending[1] -= driven
-            pending[2] -= swallowed
-            self._anchor = start
-            self._standing()
-            self._anchor = here
+        if start == here:  # the head has not moved since the last plastic: it waits
+            if pending[1] <= 0.0:
+                self._pending_z = m.nozzle_height() / Z_STEPS
             pending[0] += mm3 - swallowed
             pending[1] += driven
             pending[2] += swallowed
+            return
+        if pending[0] >= BLOB_MM3 or pending[2] > 0.0:
+            # what waited was left standing: a blob, or a refill the void took
+            self._anchor = start
+            self._standing()
+            self._anchor = here
+        pending[0] += mm3 - swallowed
+        pending[1] += driven
+        pending[2] += swallowed
         z = m.nozzle_height() / Z_STEPS
         dep, drv, swallowed = pending
         pending[0] = pending[1] = pending[2] = 0.0
@@ -243,7 +244,7 @@ class Deposition:
             return
         self._pending[0] = self._pending[1] = self._pending[2] = 0.0
         r = self.rows
-        z = self.machine.nozzle_height() / Z_STEPS
+        z = self._pending_z
         if dep < BLOB_MM3 and swallowed <= 0.0 and len(r["x0"]) and \
                 r["path"][-1] == self._path and (r["x1"][-1], r["y1"][-1]) == self._anchor:
             r["deposited"][-1] += dep
@@ -262,7 +263,7 @@ class Deposition:
         last = self._anchor
         if self.valves.has_valve and last[0] != math.inf and last != here:
             self._row(last, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)  # travel
-        self._anchor = (math.inf, math.inf)  # a new path: nothing to lay plastic from
+        self._anchor = here  # a new path's plastic is laid from where it opened
         self.path_of[n] = len(self.paths)
         self.paths.append(Path(len(self.paths), n, m.nozzle_height() / Z_STEPS,
                                (m.x / XY_STEPS, m.y / XY_STEPS), judged=self.judging))
@@ -285,7 +286,10 @@ class Deposition:
                 and r["x1"][-1] == x0 and r["y1"][-1] == y0 and r["z"][-1] == z:
             px, py = r["x0"][-1], r["y0"][-1]
             if _straight(px, py, x0, y0, x1, y1) and \
-                    _alike(r["deposited"][-1], r["driven"][-1], dep, drv):
+                    _alike(r["deposited"][-1], r["driven"][-1], dep, drv) and \
+                    dep <= 4.0 * r["deposited"][-1] * math.hypot(x1 - x0, y1 - y0) \
+                    / max(math.hypot(x0 - px, y0 - py), 1e-9) + BLOB_MM3:
+                # (and no lump: a stretch laying far more per mm than the row stays apart)
                 r["x1"][-1], r["y1"][-1] = x1, y1
                 r["deposited"][-1] += dep
                 r["driven"][-1] += drv
@@ -296,18 +300,17 @@ class Deposition:
 
 
 def _straight(px: float, py: float, jx: float, jy: float, qx: float, qy: float) -> bool:
-    """Whether the joint j stands within STRAIGHT_MM of the line from p to q, between
-    them, or the three are one point (standing plastic stays one row)."""
+    """Whether a stretch from j to q carries on straight from the row p to j: the joint
+    within STRAIGHT_MM of the line from p to q, between them. Standing rows (a point:
+    positions are whole microsteps, so a point is exact) join only each other."""
+    standing_before = px == jx and py == jy
+    standing_now = jx == qx and jy == qy
+    if standing_before or standing_now:
+        return standing_before and standing_now
     dx, dy = qx - px, qy - py
-    length = math.hypot(dx, dy)
-    if length < STANDING_MM:
-        return math.hypot(jx - px, jy - py) < STANDING_MM
-    if math.hypot(jx - px, jy - py) < STANDING_MM:
-        return False  # standing plastic, then a move: two rows
     if (jx - px) * dx + (jy - py) * dy <= 0.0 or (qx - jx) * dx + (qy - jy) * dy < 0.0:
         return False
-    return abs((jx - px) * dy - (jy - py) * dx) <= STRAIGHT_MM * length
-
+    return abs((jx - px) * dy - (jy - py) * dx) <= STRAIGHT_MM * math.hypot(dx, dy)
 
 
 def _alike(dep0: float, drv0: float, dep1: float, drv1: float) -> bool:

@@ -5,8 +5,8 @@ each row is brought into the job's frame (less the nozzle's offsets, as the firm
 adds them) and only what lands on the build plate is judged: a purge over the bin at
 the plate's front edge is meant to be a blob.
 
-- A blob: plastic left while the head stood still (a row shorter than
-  `STANDING_MM`): a valve shut or opened standing, plastic held under pressure let out.
+- A blob: plastic (`BLOB_MM3` or more) left while the head stood still (a row shorter
+  than `STANDING_MM`): a valve shut standing, plastic held under pressure let out.
 - A starved stretch: a moving row that laid down less than `STARVED` of the plastic
   driven into the nozzle for it (fed by the extruder, pushed by the needle): what a
   void below an opened needle swallows, or a needle shutting into a void.

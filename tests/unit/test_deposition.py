@@ -1,0 +1,142 @@
+"""Where the plastic lands (robox/hardware/deposition.py), on the real machine model.
+
+Volumes are worked out here from the machine's own constants: 747 E microsteps per mm
+of 1.75 mm filament, 2,500 B microsteps per valve unit, the RBX01-SM's 0.3 mm3 stroke on
+nozzle 0 and a calibrated seat at B 0.65.
+"""
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from robox.formats.heads import head_valves
+from robox.hardware.deposition import PRESSURE_LIMIT_MM3, STANDING_MM, Deposition
+from robox.hardware.machine import NOZZLE_MM, B, E, Machine, X, Y
+
+MM3_PER_STEP = math.pi * 1.75 * 1.75 / 4 / 747
+SEAT = 0.65
+STROKE = 0.3
+B_UNIT = 2500
+
+
+def machine(seat_b: bool = True) -> tuple[Machine, Deposition]:
+    m = Machine()
+    m.heaters["nozzle0"].temperature = 210.0
+    m.insert_filament(E, tip_mm=NOZZLE_MM)  # loaded up to the nozzle
+    if seat_b:
+        m.b = round(SEAT * B_UNIT)  # the valve shut on nozzle 0's seat
+    dep = Deposition(head_valves("RBX01-SM"), (1.75, 1.75), (SEAT, -0.70))
+    dep.attach(m)
+    return m, dep
+
+
+def rows(dep: Deposition) -> list[dict]:
+    r = dep.rows
+    return [{name: r[name][i] for name in r} for i in range(len(r["x0"]))]
+
+
+def test_a_valve_shut_standing_leaves_its_stroke_as_a_blob():
+    m, dep = machine()
+    m.step(B, B_UNIT)  # open standing: a void of a stroke
+    m.step(E, 93)  # the refill: into the void, nothing leaves
+    for _ in range(1337):  # 10 mm along X, feeding evenly
+        m.step(X, 1)
+        if m.x % 4 == 0:
+            m.step(E, 1)
+    m.step(B, -B_UNIT)  # shut standing still
+    dep.finish()
+    out = rows(dep)
+    refill = out[0]
+    assert refill["x0"] == refill["x1"] and refill["deposited"] == 0
+    assert refill["driven"] == pytest.approx(93 * MM3_PER_STEP)
+    line = [r for r in out if r["x1"] - r["x0"] >= STANDING_MM]
+    fed = (1337 // 4) * MM3_PER_STEP
+    # 93 steps filled 0.2994 of the 0.3 void: the line's first plastic finishes it
+    assert sum(r["deposited"] for r in line) == pytest.approx(fed - (STROKE - 93 * MM3_PER_STEP))
+    blob = out[-1]  # (where the last feed step was: 1336 X steps)
+    assert blob["x1"] - blob["x0"] < STANDING_MM and blob["x1"] == pytest.approx(10.0)
+    assert blob["deposited"] == pytest.approx(STROKE)
+    assert dep.paths[0].closed and dep.paths[0].end[0] == pytest.approx(10.0)
+
+
+def test_an_open_without_a_refill_starves_the_paths_first_millimetres():
+    m, dep = machine()
+    m.step(B, B_UNIT)  # no refill: the void takes the first 0.3 mm3 of the line
+    per_x = 0.05  # mm3 per X step: the line lays 0.05 * 133.7 mm3/mm
+    steps = round(per_x / MM3_PER_STEP)
+    for _ in range(200):
+        m.step(X, 1)
+        m.step(E, steps)
+    dep.finish()
+    starved = [r for r in rows(dep) if r["x1"] > r["x0"] and r["deposited"] < 0.8 * r["driven"]]
+    length = sum(r["x1"] - r["x0"] for r in starved)
+    # the void is full after 0.3 / (steps * MM3_PER_STEP) X steps
+    assert length == pytest.approx(STROKE / (steps * MM3_PER_STEP) / 133.7, abs=1.5 / 133.7)
+
+
+def test_a_shut_head_fills_to_its_limit_then_the_drive_slips_and_opening_lets_it_out():
+    m, dep = machine()
+    m.step(E, 1000)  # against the shut needle
+    taken = math.floor(PRESSURE_LIMIT_MM3 / MM3_PER_STEP)
+    assert m.wheel_passed[E] == taken and m.extruded[E] == taken
+    assert dep.slipped_steps == 1000 - taken
+    m.step(B, B_UNIT)
+    dep.finish()
+    out = rows(dep)
+    assert out[-1]["deposited"] == pytest.approx(taken * MM3_PER_STEP - STROKE)
+
+
+def test_a_close_on_the_move_lays_its_stroke_along_the_path():
+    m, dep = machine()
+    m.step(B, B_UNIT)
+    m.step(E, 93)
+    for _ in range(B_UNIT):  # B from 1 to 0 over 2,500 X steps: 0.3 mm3 over 18.7 mm
+        m.step(X, 1)
+        m.step(B, -1)
+    dep.finish()
+    line = [r for r in rows(dep) if r["x1"] > r["x0"]]
+    assert sum(r["deposited"] for r in line) == pytest.approx(STROKE - (STROKE - 93 * MM3_PER_STEP))
+    assert not [r for r in rows(dep) if r["x1"] == r["x0"] and r["deposited"] >= 0.01]
+    assert len(line) <= 3  # one straight stretch (and the void's end)
+
+
+moves = st.lists(st.tuples(st.sampled_from([X, Y, E, B]), st.integers(-40, 60)),
+                 max_size=200)
+
+
+@settings(max_examples=150, deadline=None)
+@given(moves)
+def test_watching_changes_nothing_while_the_head_is_not_full_and_plastic_is_kept(steps):
+    """With the needle kept off its seat (no pressure can build), a machine with the
+    record attached ends exactly where one without it does; and what the record laid
+    down is what was fed and pushed, less the voids the needle opened and still open."""
+    plain, _ = machine()
+    plain.deposition = None
+    watched, dep = machine()
+    for m in (plain, watched):
+        m.b = round((SEAT + 0.5) * B_UNIT)  # half open
+    dep.attach(watched)
+    pushed = opened = 0.0
+    b = watched.b
+
+    def opening(v: int) -> float:
+        return min(1.0, max(0.0, v / B_UNIT - SEAT))
+
+    for axis, n in steps:
+        if axis == B:
+            n = max(round((SEAT + 0.05) * B_UNIT) - b, min(round((SEAT + 1.2) * B_UNIT) - b, n))
+            before, after = opening(b), opening(b + n)
+            pushed += max(0.0, before - after) * STROKE
+            opened += max(0.0, after - before) * STROKE
+            b += n
+        plain.step(axis, n)
+        watched.step(axis, n)
+    dep.finish()
+    for name in ("x", "y", "b", "extruded", "wheel_passed"):
+        assert getattr(plain, name) == getattr(watched, name), name
+    assert plain.filament[E] == watched.filament[E]
+    fed = watched.extruded[E] * MM3_PER_STEP
+    laid = sum(dep.rows["deposited"])
+    assert laid == pytest.approx(fed + pushed - opened + dep.void[0], abs=1e-9)
