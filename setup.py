@@ -8,7 +8,7 @@ from setuptools import setup
 # The firmware model's per-pass work: the loop, the step interrupt and block queue,
 # segmenting and positions, G-code, commands, EEPROMs, heaters, C arithmetic and line
 # parsing, the machine the steps move, the EEPROMs' bus and chips, the USB link, the
-# clock, the filament float format; and the host's G-code translator.
+# clock, the filament float format; and the host's G-code translator and valve stage.
 NATIVE_MODULES = [
     "robox/firmware/carith.py",
     "robox/firmware/cline.py",
@@ -31,6 +31,7 @@ NATIVE_MODULES = [
     "robox/hardware/sdcard.py",
     "robox/formats/float8.py",
     "robox/gcode/translate.py",
+    "robox/gcode/valve.py",
     "robox/gcode/text.py",
     "robox/packed.py",
 ]

@@ -33,6 +33,7 @@ MODULES = (
     "robox.hardware.sdcard",
     "robox.formats.float8",
     "robox.gcode.translate",
+    "robox.gcode.valve",
     "robox.gcode.text",
     "robox.packed",
 )

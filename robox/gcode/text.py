@@ -90,3 +90,17 @@ def words(line: bytes) -> tuple[str, dict[str, str]]:
         return "", {}
     (letter, number), rest = out[0], out[1:]
     return letter + number, {k: v for k, v in rest}
+
+
+def number(value: float) -> bytes:
+    """`value` as a job writes it: to 5 decimals, without trailing zeros (printf-style:
+    compiled, the format string is not parsed at every call; the zeros and the point
+    cut in a native loop)."""
+    text = b"%.5f" % value
+    end = len(text)
+    while end > 1 and text[end - 1] == 0x30:
+        end -= 1
+    if text[end - 1] == 0x2E:
+        end -= 1
+    text = text[:end]
+    return b"0" if text == b"-0" or not text else text

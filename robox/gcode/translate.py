@@ -45,7 +45,7 @@ from typing import Final
 
 from robox.errors import UsageError
 from robox.formats.heads import head_kind, head_valves
-from robox.gcode.text import code_part, words
+from robox.gcode.text import code_part, number, words
 from robox.gcode.valve import ValveStage
 
 #: A single-material head's nozzle for each feature the slicers mark (;TYPE:), as
@@ -379,19 +379,6 @@ def _width(text: bytes) -> float | None:
     return value if math.isfinite(value) and value > 0 else None
 
 
-def _fmt(value: float) -> bytes:
-    """`value` to 5 decimals, without trailing zeros (printf-style: compiled, the format
-    string is not parsed at every call; the zeros and the point cut in a native loop)."""
-    text = b"%.5f" % value
-    end = len(text)
-    while end > 1 and text[end - 1] == 0x30:
-        end -= 1
-    if text[end - 1] == 0x2E:
-        end -= 1
-    text = text[:end]
-    return b"0" if text == b"-0" or not text else text
-
-
 def sequence(name: str, kind: str) -> list[bytes]:
     """A start or end sequence for a head kind, from robox/data/sequences/."""
     base = SEQUENCES
@@ -600,13 +587,13 @@ class Translator:
                 pressurised.add(feed)
                 yield b"G36 " + feed.encode() + b"500 F400"  # until the drive slips
             yield b"G0 B1"
-            yield b"G1 X60 " + feed.encode() + _fmt(share) + b" F1200"
+            yield b"G1 X60 " + feed.encode() + number(share) + b" F1200"
             self.s.sequence_mm3 += share
             yield b"G0 B0"
 
     def _depressurise(self) -> Iterator[bytes]:
         feeds = sorted({feed for _, feed in self._nozzles_used()})
-        yield b"G1 " + b" ".join(f.encode() + _fmt(-DEPRESSURISE_MM3) for f in feeds) + \
+        yield b"G1 " + b" ".join(f.encode() + number(-DEPRESSURISE_MM3) for f in feeds) + \
             b" F400"
         self.s.depressurise_mm3 += DEPRESSURISE_MM3 * len(feeds)
 
@@ -725,13 +712,13 @@ class Translator:
         elif code in ("M140", "M190"):
             t = p.get("S") or p.get("R")
             if t is not None:
-                out.append(b"M140 S" + _fmt(max(0.0, _number(t, code))))
+                out.append(b"M140 S" + number(max(0.0, _number(t, code))))
             if code == "M190" and (t is None or _number(t, code) > 0):
                 out.append(b"M190")
         elif code in ("M141", "M191"):
             t = p.get("S") or p.get("R")
             if t is not None:
-                out.append(b"M170 S" + _fmt(max(0.0, _number(t, code))))
+                out.append(b"M170 S" + number(max(0.0, _number(t, code))))
         elif code == "M106":
             if _number(p.get("P", "0"), "M106 P") != 0:
                 self.s.dropped["M106 P (a second fan)"] += 1
@@ -759,7 +746,7 @@ class Translator:
         t = p.get("S") or p.get("R")
         if t is not None:
             value = max(0.0, _number(t, code))
-            out.append(f"M104 {self._heater(tool)}".encode() + _fmt(value))
+            out.append(f"M104 {self._heater(tool)}".encode() + number(value))
             if code == "M109" and value > 0:
                 out.append(b"M109")
         elif code == "M109":
@@ -810,7 +797,7 @@ class Translator:
         """A G0 or G1: its code, its head (the code and the axis words the slicer gave,
         each checked) and its E and F values (see _plain_move)."""
         axes = len(head) > len(code)
-        feed = b"" if f is None else b" F" + _fmt(_move_number(f, "F"))
+        feed = b"" if f is None else b" F" + number(_move_number(f, "F"))
         delta = 0.0
         if e is not None:
             if not self._mode_seen:  # as the first extrusion reads it
@@ -830,7 +817,7 @@ class Translator:
             self.s.retractions += 1
             self.retracted[self.tool] += -volume
             if self.kind == "plain":
-                out.append(b"G1" + word + _fmt(volume) + feed)
+                out.append(b"G1" + word + number(volume) + feed)
                 self._book(extruder, volume)
             else:
                 self._close(out)
@@ -843,7 +830,7 @@ class Translator:
             owed = min(volume, self.retracted[self.tool])
             self.retracted[self.tool] -= owed
             if self.kind == "plain":
-                out.append(b"G1" + word + _fmt(owed))
+                out.append(b"G1" + word + number(owed))
                 self._book(extruder, owed)
             volume -= owed
         if volume > 1e-9:
@@ -852,7 +839,7 @@ class Translator:
             if self.kind != "plain" and not self.valve_open:
                 self._open(out)
             self._book(extruder, volume)
-            out.append(head + word + _fmt(volume) + feed)
+            out.append(head + word + number(volume) + feed)
             return
         if axes:  # a travel: the valve stays as the slicer left it (closed by a retraction)
             out.append(head + feed)

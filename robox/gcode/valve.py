@@ -42,6 +42,7 @@ import re
 from dataclasses import dataclass, field
 
 from robox.formats.heads import OPENS_BEFORE_RESELECT, PARTIAL_B_MINIMUM, HeadValves
+from robox.gcode.text import number
 
 #: Lines the look-behind buffer holds before it writes out the oldest.
 MAX_BUFFER = 4000
@@ -92,17 +93,6 @@ class Step:
     changed: bool = False
 
 
-def _fmt(value: float) -> bytes:
-    text = b"%.5f" % value
-    end = len(text)
-    while end > 1 and text[end - 1] == 0x30:
-        end -= 1
-    if text[end - 1] == 0x2E:
-        end -= 1
-    text = text[:end]
-    return b"0" if text == b"-0" or not text else text
-
-
 @dataclass
 class ValveCounts:
     closes_on_move: int = 0
@@ -146,6 +136,7 @@ class ValveStage:
         self.tool_changed = False  # (dual-material heads: M109 before the next open)
         self.owed: dict[int, float] = {}  # per nozzle: mm3 its next refill leaves out
         self.pending_tool: Step | None = None  # a T waiting for the travel it goes with
+        self._written_feed = b""  # the feed rate the lines written so far leave in force
 
     # ------------------------------------------------------------ input
     def feed(self, line: bytes) -> list[bytes]:
@@ -389,7 +380,7 @@ class ValveStage:
         s = self.buf[k]
         mx = s.sx + (s.x - s.sx) * f
         my = s.sy + (s.y - s.sy) * f
-        first = Step(EXTRUDE, b"G1 X" + _fmt(mx) + b" Y" + _fmt(my), s.sx, s.sy, mx, my,
+        first = Step(EXTRUDE, b"G1 X" + number(mx) + b" Y" + number(my), s.sx, s.sy, mx, my,
                      s.e * f, feed=s.feed, feed_in_force=s.feed_in_force, feature=s.feature,
                      word=s.word)
         s.feed = b""
@@ -475,7 +466,7 @@ class ValveStage:
             (self.buf[at].sx, self.buf[at].sy)
         moves: list[Step] = []
         if start != here:
-            moves.append(Step(CLOSE_MOVE, b"G1 X" + _fmt(start[0]) + b" Y" + _fmt(start[1]),
+            moves.append(Step(CLOSE_MOVE, b"G1 X" + number(start[0]) + b" Y" + number(start[1]),
                               here[0], here[1], start[0], start[1], feed_in_force=feed))
         done = 0.0
         k = at
@@ -502,7 +493,7 @@ class ValveStage:
             s.e = 0.0
             s.changed = True
             self.counts.removed_mm3 += v
-            moves.append(Step(CLOSE_MOVE, b"G1 X" + _fmt(b[0]) + b" Y" + _fmt(b[1]),
+            moves.append(Step(CLOSE_MOVE, b"G1 X" + number(b[0]) + b" Y" + number(b[1]),
                               a[0], a[1], b[0], b[1], b=max(0.0, 1.0 - done / ej),
                               feed_in_force=s.feed_in_force))
             prev = s
@@ -546,16 +537,16 @@ class ValveStage:
                         feed = m.group(1)
                 continue
             if kind == OPEN:
-                out.append(b"G1 B" + _fmt(s.b) + s.word + _fmt(s.e) + b" F" + REFILL_FEED
-                           if s.e > EPSILON else b"G0 B" + _fmt(s.b))
+                out.append(b"G1 B" + number(s.b) + s.word + number(s.e) + b" F" + REFILL_FEED
+                           if s.e > EPSILON else b"G0 B" + number(s.b))
                 if s.e > EPSILON:
                     feed = REFILL_FEED
                 continue
             line = s.line
             if kind == EXTRUDE and s.e > EPSILON:
-                line += s.word + _fmt(s.e)
+                line += s.word + number(s.e)
             if s.b >= 0.0:
-                line += b" B" + _fmt(s.b)
+                line += b" B" + number(s.b)
             line += s.rest
             if s.feed:
                 line += b" F" + s.feed
@@ -570,5 +561,3 @@ class ValveStage:
             self.open_at -= count
             if self.open_at < 0:
                 self.open_at = -1
-
-    _written_feed: bytes = b""

@@ -69,6 +69,9 @@ BLOB_MM3 = 0.01
 #: far apart), without one a travel is told only by the distance.
 ANCHOR_MM = 5.0
 ANCHOR_PLAIN_MM = 1.0
+#: Heights this close (mm) are one for merging: on a levelled gantry the nozzle's
+#: height follows the carriage's X by fractions of a microstep.
+SAME_Z_MM = 0.005
 #: How far (mm) a joint may stand off the line for two stretches to be merged.
 STRAIGHT_MM = 0.01
 #: Rows: x0, y0, x1, y1, z, deposited, driven, nozzle, path (-1: a travel).
@@ -283,7 +286,7 @@ class Deposition:
         x0, y0 = start
         x1, y1 = end
         if len(r["x0"]) and r["path"][-1] == path and r["nozzle"][-1] == nozzle \
-                and r["x1"][-1] == x0 and r["y1"][-1] == y0 and r["z"][-1] == z:
+                and r["x1"][-1] == x0 and r["y1"][-1] == y0 and abs(r["z"][-1] - z) <= SAME_Z_MM:
             px, py = r["x0"][-1], r["y0"][-1]
             if _straight(px, py, x0, y0, x1, y1) and \
                     _alike(r["deposited"][-1], r["driven"][-1], dep, drv) and \
