@@ -71,6 +71,32 @@ _WORD = re.compile(rb"([A-Za-z])\s*([-+]?[0-9]*\.?[0-9]*)")
 _FEED = re.compile(rb"[Ff]\s*([-+]?[0-9]*\.?[0-9]+)")
 
 
+def _words(line: bytes) -> list[bytes]:
+    """A move's words after its code, each a letter and its value: split at blanks (a
+    job's own lines), or found one by one where a letter stands apart from its value
+    or a value runs into the next letter."""
+    parts = line.split()[1:]
+    for part in parts:
+        n = len(part)
+        if n < 2 or not 0x41 <= part[0] & 0xDF <= 0x5A:
+            return _spaced(line)
+        for i in range(1, n):
+            if 0x41 <= part[i] & 0xDF <= 0x5A:
+                return _spaced(line)
+    return parts
+
+
+def _spaced(line: bytes) -> list[bytes]:
+    return [letter + value for letter, value in _WORD.findall(line[2:])]
+
+
+def _float(value: bytes) -> float:
+    try:
+        return float(value) if value else 0.0
+    except ValueError:
+        return 0.0
+
+
 def feature_class(name: str) -> str:
     return _FEATURES.get(name.strip().lower(), "other")
 
@@ -144,7 +170,7 @@ class ValveStage:
         if line.startswith(b";TYPE:"):
             self.feature = feature_class(line[6:].decode("ascii", "replace"))
             return out
-        code = line.split(b" ", 1)[0].upper() if line else b""
+        code = line.split(None, 1)[0].upper() if line else b""
         if self.relative:
             if code == b"G90":
                 self.relative = False
@@ -159,11 +185,11 @@ class ValveStage:
             out.append(line)
         elif code == b"G92":
             self._add(Step(OTHER, line))
-            for letter, value in _WORD.findall(line[3:]):
-                if letter in b"Xx":
-                    self.x = float(value or 0)
-                elif letter in b"Yy":
-                    self.y = float(value or 0)
+            for part in _words(line):
+                if part[0] & 0xDF == 0x58:
+                    self.x = _float(part[1:])
+                elif part[0] & 0xDF == 0x59:
+                    self.y = _float(part[1:])
         elif code[:1] == b"T" and code[1:].isdigit():
             self._tool(int(code[1:]), out)
         else:
@@ -184,37 +210,40 @@ class ValveStage:
 
     # ------------------------------------------------------------ lines
     def _move(self, line: bytes, out: list[bytes]) -> None:
-        words = _WORD.findall(line[2:])
-        b = e = None
+        b = e = -1.0
+        has_b = has_e = has_xy = False
         x, y = self.x, self.y
-        has_xy = False
         f = b""
-        head = line[:2]
+        head_parts = [line[:2]]
         rest = b""
-        for letter, value in words:
-            upper = letter.upper()
-            if upper == b"X":
-                x = float(value or 0)
+        for part in _words(line):
+            upper = part[0] & 0xDF  # (the letter's upper case)
+            value = part[1:]
+            if upper == 0x58:  # X
+                x = _float(value)
                 has_xy = True
-                head += b" X" + value
-            elif upper == b"Y":
-                y = float(value or 0)
+                head_parts.append(part)
+            elif upper == 0x59:  # Y
+                y = _float(value)
                 has_xy = True
-                head += b" Y" + value
-            elif upper == b"Z":
-                head += b" Z" + value
-            elif upper == b"B":
-                b = float(value or 0)
-            elif upper in (b"E", b"D"):
-                e = float(value or 0)
-                self.word = b" D" if upper == b"D" else b" E"
-            elif upper == b"F":
+                head_parts.append(part)
+            elif upper == 0x5A:  # Z
+                head_parts.append(part)
+            elif upper == 0x42:  # B
+                b = _float(value)
+                has_b = True
+            elif upper == 0x45 or upper == 0x44:  # E, D
+                e = _float(value)
+                has_e = True
+                self.word = b" D" if upper == 0x44 else b" E"
+            elif upper == 0x46:  # F
                 f = value
             else:
-                rest += b" " + letter + value
+                rest += b" " + part
+        head = b" ".join(head_parts)
         if f:
             self.feed_in_force = f
-        if b is not None and not has_xy and len(head) == 2 and e is None:
+        if has_b and not has_xy and len(head) == 2 and not has_e:
             if b >= 0.5 and not self.is_open:
                 self._open(out)
             elif b < 0.5 and self.is_open:
@@ -224,11 +253,11 @@ class ValveStage:
             elif b != (1.0 if self.is_open else 0.0):
                 self._add(Step(OTHER, line))
             return
-        if b is not None:  # a move with a valve word of its own: as it is
+        if has_b:  # a move with a valve word of its own: as it is
             self._add(Step(OTHER, line))
             self.x, self.y = x, y
             return
-        if self.pending_tool is not None and has_xy and e is None and b" Z" not in head:
+        if self.pending_tool is not None and has_xy and not has_e and b" Z" not in head:
             # a T the slicer wrote before its travel: the two as one (`T1 X.. Y..`)
             tool, self.pending_tool = self.pending_tool, None
             tool.line += head[2:]
@@ -240,11 +269,11 @@ class ValveStage:
             return
         step = Step(TRAVEL, head, self.x, self.y, x, y, feed=f,
                     feed_in_force=self.feed_in_force, feature=self.feature, rest=rest)
-        if e is not None and e > EPSILON and self.is_open:
+        if has_e and e > EPSILON and self.is_open:
             step.kind = EXTRUDE
             step.e = e
             step.word = self.word
-        elif e is not None and abs(e) > EPSILON:
+        elif has_e and abs(e) > EPSILON:
             step.kind = OTHER  # plastic with the valve shut (a macro's): as it is
             step.line = line
         self.x, self.y = x, y
@@ -473,6 +502,9 @@ class ValveStage:
         prev: Step | None = None
         while ej - done > EPSILON and 0 <= k < len(self.buf):
             s = self.buf[k]
+            if s.kind == OTHER or (s.kind == TRAVEL and s.x == s.sx and s.y == s.sy):
+                k += direction  # a line that does not move the head (a fan, a feed rate)
+                continue
             if s.kind != EXTRUDE:
                 break
             if prev is not None and ((s.x, s.y) != (prev.sx, prev.sy) if direction < 0
