@@ -492,16 +492,19 @@ class Translator:
             yield from self._run(lines)
             return
         written = 0
+        out: list[bytes] = []
         for line in self._run(lines):
             if line == START_DONE:
                 self.s.start_lines = written + len(stage.buf)
                 continue
-            for out in stage.feed(line):
-                written += 1
-                yield out
-        for out in stage.finish():
+            stage.feed(line, out)
+            if out:
+                written += len(out)
+                yield from out
+                out.clear()
+        for line in stage.finish():
             written += 1
-            yield out
+            yield line
         self.s.lines_out = written
         self.s.valve = stage.counts.as_dict()
 

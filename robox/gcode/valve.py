@@ -71,21 +71,6 @@ _WORD = re.compile(rb"([A-Za-z])\s*([-+]?[0-9]*\.?[0-9]*)")
 _FEED = re.compile(rb"[Ff]\s*([-+]?[0-9]*\.?[0-9]+)")
 
 
-def _words(line: bytes) -> list[bytes]:
-    """A move's words after its code, each a letter and its value: split at blanks (a
-    job's own lines), or found one by one where a letter stands apart from its value
-    or a value runs into the next letter."""
-    parts = line.split()[1:]
-    for part in parts:
-        n = len(part)
-        if n < 2 or not 0x41 <= part[0] & 0xDF <= 0x5A:
-            return _spaced(line)
-        for i in range(1, n):
-            if 0x41 <= part[i] & 0xDF <= 0x5A:
-                return _spaced(line)
-    return parts
-
-
 def _spaced(line: bytes) -> list[bytes]:
     return [letter + value for letter, value in _WORD.findall(line[2:])]
 
@@ -116,7 +101,8 @@ class Step:
     feature: str = "other"
     rest: bytes = b""  # a move's words after X, Y (Z), kept as they were
     word: bytes = b" E"  # the extruder's word
-    changed: bool = False
+    changed: bool = False  # written anew (else `raw`, the line as it came)
+    raw: bytes = b""
 
 
 @dataclass
@@ -165,17 +151,17 @@ class ValveStage:
         self._written_feed = b""  # the feed rate the lines written so far leave in force
 
     # ------------------------------------------------------------ input
-    def feed(self, line: bytes) -> list[bytes]:
-        out: list[bytes] = []
+    def feed(self, line: bytes, out: list[bytes]) -> None:
+        """One of the translator's lines; the lines ready to write are added to `out`."""
         if line.startswith(b";TYPE:"):
             self.feature = feature_class(line[6:].decode("ascii", "replace"))
-            return out
+            return
         code = line.split(None, 1)[0].upper() if line else b""
         if self.relative:
             if code == b"G90":
                 self.relative = False
             out.append(line)
-            return out
+            return
         if code in (b"G0", b"G1"):
             self._move(line, out)
         elif code == b"G91":
@@ -185,7 +171,7 @@ class ValveStage:
             out.append(line)
         elif code == b"G92":
             self._add(Step(OTHER, line))
-            for part in _words(line):
+            for part in _spaced(line):
                 if part[0] & 0xDF == 0x58:
                     self.x = _float(part[1:])
                 elif part[0] & 0xDF == 0x59:
@@ -196,7 +182,6 @@ class ValveStage:
             self._add(Step(OTHER, line))
         if len(self.buf) > MAX_BUFFER:
             self._trim(out)
-        return out
 
     def finish(self) -> list[bytes]:
         out: list[bytes] = []
@@ -214,33 +199,98 @@ class ValveStage:
         has_b = has_e = has_xy = False
         x, y = self.x, self.y
         f = b""
-        head_parts = [line[:2]]
         rest = b""
-        for part in _words(line):
-            upper = part[0] & 0xDF  # (the letter's upper case)
-            value = part[1:]
-            if upper == 0x58:  # X
-                x = _float(value)
-                has_xy = True
-                head_parts.append(part)
-            elif upper == 0x59:  # Y
-                y = _float(value)
-                has_xy = True
-                head_parts.append(part)
-            elif upper == 0x5A:  # Z
-                head_parts.append(part)
-            elif upper == 0x42:  # B
-                b = _float(value)
+        # one pass over a job's own line (code, then words of a letter and its value,
+        # one blank apart); the head is the code and the X, Y and Z words before any
+        # other, a slice of the line where they come first
+        n = len(line)
+        i = 2
+        head_end = 2
+        tidy = True
+        head_parts: list[bytes] = []
+        while i < n:
+            c = line[i]
+            if c == 32 or c == 9:
+                i += 1
+                continue
+            start = i
+            i += 1
+            while i < n and line[i] != 32 and line[i] != 9:
+                if 0x41 <= line[i] & 0xDF <= 0x5A:  # a letter in a value: not a job's own
+                    self._move_spaced(line, out)
+                    return
+                i += 1
+            upper = line[start] & 0xDF
+            if i - start < 2 or not 0x41 <= upper <= 0x5A:
+                self._move_spaced(line, out)
+                return
+            if upper == 0x58 or upper == 0x59 or upper == 0x5A:  # X, Y, Z
+                if upper == 0x58:
+                    x = _float(line[start + 1:i])
+                    has_xy = True
+                elif upper == 0x59:
+                    y = _float(line[start + 1:i])
+                    has_xy = True
+                if tidy and start == head_end + 1:
+                    head_end = i
+                else:
+                    tidy = False
+                head_parts.append(line[start:i])
+                continue
+            if upper == 0x42:  # B
+                b = _float(line[start + 1:i])
                 has_b = True
             elif upper == 0x45 or upper == 0x44:  # E, D
-                e = _float(value)
+                e = _float(line[start + 1:i])
                 has_e = True
                 self.word = b" D" if upper == 0x44 else b" E"
             elif upper == 0x46:  # F
+                f = line[start + 1:i]
+            else:
+                rest += b" " + line[start:i]
+        head = line[:head_end] if tidy else b" ".join([line[:2], *head_parts])
+        self._moved(line, out, head, x, y, has_xy, b, has_b, e, has_e, f, rest)
+
+    def _move_spaced(self, line: bytes, out: list[bytes]) -> None:
+        """A move whose words are not each a letter and its value with blanks between
+        (a macro's, say): read word by word."""
+        b = e = -1.0
+        has_b = has_e = has_xy = False
+        x, y = self.x, self.y
+        f = b""
+        rest = b""
+        head_parts = [line[:2]]
+        for part in _spaced(line):
+            upper = part[0] & 0xDF
+            value = part[1:]
+            if upper == 0x58:
+                x = _float(value)
+                has_xy = True
+                head_parts.append(part)
+            elif upper == 0x59:
+                y = _float(value)
+                has_xy = True
+                head_parts.append(part)
+            elif upper == 0x5A:
+                head_parts.append(part)
+            elif upper == 0x42:
+                b = _float(value)
+                has_b = True
+            elif upper == 0x45 or upper == 0x44:
+                e = _float(value)
+                has_e = True
+                self.word = b" D" if upper == 0x44 else b" E"
+            elif upper == 0x46:
                 f = value
             else:
                 rest += b" " + part
-        head = b" ".join(head_parts)
+        self._moved(line, out, b" ".join(head_parts), x, y, has_xy, b, has_b, e, has_e, f,
+                    rest)
+
+    def _moved(self, line: bytes, out: list[bytes], head: bytes, x: float, y: float,
+               has_xy: bool, b: float, has_b: bool, e: float, has_e: bool, f: bytes,
+               rest: bytes) -> None:
+        """A move read: a valve word the translator wrote, a T's travel, or a step."""
         if f:
             self.feed_in_force = f
         if has_b and not has_xy and len(head) == 2 and not has_e:
@@ -268,7 +318,8 @@ class ValveStage:
             self.x, self.y = x, y
             return
         step = Step(TRAVEL, head, self.x, self.y, x, y, feed=f,
-                    feed_in_force=self.feed_in_force, feature=self.feature, rest=rest)
+                    feed_in_force=self.feed_in_force, feature=self.feature, rest=rest,
+                    raw=line)
         if has_e and e > EPSILON and self.is_open:
             step.kind = EXTRUDE
             step.e = e
@@ -415,6 +466,7 @@ class ValveStage:
         s.feed = b""
         s.sx, s.sy = mx, my
         s.e -= first.e
+        s.changed = first.changed = True
         self.buf.insert(k, first)
         if self.open_at > k:
             self.open_at += 1
@@ -573,6 +625,16 @@ class ValveStage:
                            if s.e > EPSILON else b"G0 B" + number(s.b))
                 if s.e > EPSILON:
                     feed = REFILL_FEED
+                continue
+            if not s.changed and s.raw:  # as it came, with the feed rate it assumed
+                if s.feed:
+                    feed = s.feed
+                    out.append(s.raw)
+                elif s.feed_in_force and feed != s.feed_in_force and len(s.line) > 2:
+                    feed = s.feed_in_force
+                    out.append(s.raw + b" F" + feed)
+                else:
+                    out.append(s.raw)
                 continue
             line = s.line
             if kind == EXTRUDE and s.e > EPSILON:
