@@ -91,7 +91,7 @@ SETTING = re.compile(rb"^;\s*([A-Za-z_ ]+?)\s*[=:]\s*(.*?)\s*$")
 # Codes dropped: the printer has no such code, or one with another meaning.
 DROPPED_QUIETLY = {"G21", "M82", "M83"}
 #: Between the translator and its valve stage: the start sequence ends here.
-START_DONE = b";START_DONE"
+START_DONE: Final = b";START_DONE"
 
 
 @dataclass

@@ -40,27 +40,28 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from typing import Final
 
 from robox.formats.heads import OPENS_BEFORE_RESELECT, PARTIAL_B_MINIMUM, HeadValves
 from robox.gcode.text import number
 
 #: Lines the look-behind buffer holds before it writes out the oldest.
-MAX_BUFFER = 4000
+MAX_BUFFER: Final = 4000
 #: AutoMaker's feed (mm/min) for the refill as the valve opens.
-REFILL_FEED = b"150"
-EPSILON = 1e-9
+REFILL_FEED: Final = b"150"
+EPSILON: Final = 1e-9
 
 # what a line is to the stage
-OTHER = 0
-EXTRUDE = 1
-TRAVEL = 2
-OPEN = 3
-CLOSE_MOVE = 4  # a move of a close made on another path (no E, a B)
-TOOL = 5
+OTHER: Final = 0
+EXTRUDE: Final = 1
+TRAVEL: Final = 2
+OPEN: Final = 3
+CLOSE_MOVE: Final = 4  # a move of a close made on another path (no E, a B)
+TOOL: Final = 5
 
 # feature classes, from the slicers' ;TYPE: names
-OUTER = "outer"
-INNER = "inner"
+OUTER: Final = "outer"
+INNER: Final = "inner"
 _FEATURES = {
     "external perimeter": OUTER, "overhang perimeter": OUTER, "outer wall": OUTER,
     "overhang wall": OUTER, "wall-outer": OUTER,
@@ -86,23 +87,29 @@ def feature_class(name: str) -> str:
     return _FEATURES.get(name.strip().lower(), "other")
 
 
-@dataclass
 class Step:
-    kind: int
-    line: bytes = b""  # OTHER, TOOL: the line; moves: the code and axis words
-    sx: float = 0.0  # where the move starts
-    sy: float = 0.0
-    x: float = 0.0  # where it ends
-    y: float = 0.0
-    e: float = 0.0  # mm3 (EXTRUDE, OPEN's refill)
-    b: float = -1.0  # the valve at the move's end (-1: not written)
-    feed: bytes = b""  # the F written on the line (b"": none)
-    feed_in_force: bytes = b""  # the slicer's feed rate for this move
-    feature: str = "other"
-    rest: bytes = b""  # a move's words after X, Y (Z), kept as they were
-    word: bytes = b" E"  # the extruder's word
-    changed: bool = False  # written anew (else `raw`, the line as it came)
-    raw: bytes = b""
+    """A line in the look-behind buffer. (A plain class: compiled, a dataclass's
+    generated __init__ would run interpreted for every line.)"""
+
+    def __init__(self, kind: int, line: bytes = b"", sx: float = 0.0, sy: float = 0.0,
+                 x: float = 0.0, y: float = 0.0, e: float = 0.0, b: float = -1.0,
+                 feed: bytes = b"", feed_in_force: bytes = b"", feature: str = "other",
+                 rest: bytes = b"", word: bytes = b" E", raw: bytes = b"") -> None:
+        self.kind = kind
+        self.line = line  # OTHER, TOOL: the line; moves: the code and axis words
+        self.sx = sx  # where the move starts
+        self.sy = sy
+        self.x = x  # where it ends
+        self.y = y
+        self.e = e  # mm3 (EXTRUDE, OPEN's refill)
+        self.b = b  # the valve at the move's end (-1: not written)
+        self.feed = feed  # the F written on the line (b"": none)
+        self.feed_in_force = feed_in_force  # the slicer's feed rate for this move
+        self.feature = feature
+        self.rest = rest  # a move's words after X, Y (Z), kept as they were
+        self.word = word  # the extruder's word
+        self.changed = False  # written anew (else `raw`, the line as it came)
+        self.raw = raw
 
 
 @dataclass
