@@ -548,10 +548,37 @@ class Motion:
         k = self._run_length(blk, limit, m, cap, a)
         if k > 1:
             self._batch(blk, k, m)
-        elif self.switch_abandon_counter == 0 and m.quiet_steps(None) >= (1 << 59):
+        elif self.switch_abandon_counter == 0:
+            wheels = self._wheel_cap(blk, m)
+            if wheels < 2:
+                self._interrupt(blk, m)
+                return
+            if wheels < (1 << 59):  # a wheel turns: checked once, it cannot change
+                self._check_index_wheels()
+                if cap is None or wheels < cap:
+                    cap = wheels
             self._singles(blk, limit, cap)
         else:
             self._interrupt(blk, m)
+
+    def _wheel_cap(self, blk: Block, m: Machine) -> int:
+        """How many interrupts of this block can be made before an index wheel the
+        block turns could change level: each drive's own steps against its wheel's
+        margin (at most one carry per 65,536 of its increment); NEVER if none turns."""
+        most: i64 = 1 << 60
+        inc = blk.inc
+        for axis in blk.movers:
+            if E <= axis <= D:
+                margin: i64 = m.wheel_steps(axis)
+                if margin < (1 << 59):
+                    step: i64 = inc[axis]
+                    if step < 0:
+                        step = -step
+                    if step > 0:
+                        k: i64 = ((margin - 1) * 65536 - 65535) // step
+                        if k < most:
+                            most = k
+        return most
 
     def _check_index_wheels(self) -> None:
         m = self.machine
@@ -601,9 +628,10 @@ class Motion:
 
     def _singles(self, blk: Block, limit: int, cap: int | None) -> None:
         """Interrupts one at a time while the speed ramps, the same arithmetic as
-        `_interrupt` in a tight loop, for a block that watches no switch and turns no
-        index wheel. Nothing the interrupts read changes on the way, so each axis's
-        steps are made at the end, all at once, from its accumulator (as `_batch` does).
+        `_interrupt` in a tight loop, for a block that watches no switch, and no further
+        than its index wheels can turn without changing level (`cap`). Nothing the
+        interrupts read changes on the way, so each axis's steps are made at the end, all
+        at once, from its accumulator (as `_batch` does).
         Stops once the speed holds at the block's cruise speed or the floor (a run may
         follow), at the block's end, at `limit` or after `cap` interrupts; a speed that
         holds while the block slows down (the square root's steps) runs on."""
@@ -778,6 +806,9 @@ class Motion:
         quiet = m.quiet_steps(self.switch_select if watching else None)
         if quiet < (1 << 59):
             k = min(k, ((quiet - 1) * 65536 - 65535) // biggest)
+        wheels = self._wheel_cap(blk, m)
+        if wheels < k:
+            k = wheels
         return k
 
     def _batch(self, blk: Block, k: int, m: Machine) -> None:

@@ -30,8 +30,9 @@ filament in (`feed_by_hand`, what starts an automatic load). The door's latch
 opens when the carriage goes beyond Y's travel.
 
 The motion object moves motors with `step(axis, n)`; `quiet_steps(select)`
-bounds how far any motor may move before an input the step interrupt reads
-could change, so whole runs of interrupts can be done at once.
+bounds how far any motor may move before a watched switch could change, and
+`wheel_steps(axis)` how far a drive may move before its index wheel could, so
+whole runs of interrupts can be done at once.
 """
 
 from __future__ import annotations
@@ -277,16 +278,19 @@ class Machine:
 
     def quiet_steps(self, select: int | None) -> int:
         """How many microsteps any motor may make before the selected switch (None: no
-        switch watched) or an index wheel can change."""
-        margin = NEVER
+        switch watched) can change (an index wheel: `wheel_steps`)."""
         if select is not None and AXES[select] not in self.stuck:
-            margin = self._switch_margin(select)
-        for axis in range(E, D + 1):
-            f = self.filament[axis]
-            if f is not None and not self.wheel_slipping[axis]:
-                r = self.wheel_passed[axis] % INDEX_EDGE_STEPS
-                margin = min(margin, r + 1, INDEX_EDGE_STEPS - r)
-        return margin
+            return self._switch_margin(select)
+        return NEVER
+
+    def wheel_steps(self, axis: int) -> int:
+        """How many microsteps of drive `axis` (E, D) may be made before its index
+        wheel's level can change (the wheel turns with the filament, at most a microstep
+        a step); NEVER where it cannot turn."""
+        if self.filament[axis] is None or self.wheel_slipping[axis]:
+            return NEVER
+        r = self.wheel_passed[axis] % INDEX_EDGE_STEPS
+        return min(r + 1, INDEX_EDGE_STEPS - r)
 
     def _switch_margin(self, axis: int) -> int:
         if axis == X:

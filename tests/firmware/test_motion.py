@@ -121,6 +121,70 @@ def test_runs_of_interrupts_and_skipped_passes_change_nothing(monkeypatch):
     assert len(fast) == 85 and fast == slow
 
 
+def filament_session(wire, moves: list[str]) -> list[bytes]:
+    """A hot nozzle with filament 2 mm short of it: moves that push, extrude and draw
+    back, with every reply, the index wheels' reports and the machine at the end."""
+    from robox.hardware.machine import NOZZLE_MM
+
+    m = wire.printer.hw.machine
+    m.insert_filament(E, tip_mm=NOZZLE_MM - 2.0)
+    m.insert_filament(D, tip_mm=NOZZLE_MM - 2.0)
+    for name in ("nozzle0", "nozzle1"):
+        m.heaters[name].temperature = 210.0
+    out = []
+    motion = wire.fw.motion
+    for text in ("M104 S210 T210", "G28 X Y", *moves):
+        wire.gcode(job_text([text]))
+        for _ in range(2):
+            wire.printer.run_until(lambda: False, 0.173)
+            out.append(wire.gcode(b"M114\r"))
+            out.append(wire.gcode(b"M119\r"))  # the index wheels' levels
+            out.append(wire.raw(b"\xb0"))
+            # the drives' accumulators count the steps since their wheel's last edge
+            # (the slip detection's measure): a run that passed an edge unseen shows here
+            out.append(repr((list(motion.acc), list(motion.last_index),
+                             list(motion.index_moved))).encode())
+    settle(wire)
+    out.append(repr((m.x, m.y, m.b, m.filament[E], m.filament[D], m.wheel_passed,
+                     m.extruded, motion.interrupts, motion.last_tick, motion.slip_error,
+                     wire.fw.clock.now)).encode())
+    return out
+
+
+def one_interrupt_at_a_time(monkeypatch, wire) -> None:
+    motion = wire.fw.motion
+    monkeypatch.setattr(motion, "can_run_ahead", lambda: False)
+    monkeypatch.setattr(motion, "_run_length", lambda *a: 1)
+    monkeypatch.setattr(motion, "_singles", lambda blk, limit, cap: motion._interrupt(
+        blk, motion.machine))
+
+
+_move = st.builds(
+    lambda x, y, e, d, f: (f"G1 X{x} Y{y}" if x is not None else "G1") +
+    (f" E{e}" if e is not None else "") + (f" D{d}" if d is not None else "") + f" F{f}",
+    st.one_of(st.none(), st.integers(5, 200)), st.integers(5, 140),
+    st.one_of(st.none(), st.floats(-3.0, 12.0).map(lambda v: round(v, 2))),
+    st.one_of(st.none(), st.floats(-1.0, 4.0).map(lambda v: round(v, 2))),
+    st.sampled_from([120, 600, 3000, 12000]))
+
+
+@pytest.mark.skipif("robox.firmware.motion" in compiled_modules(),
+                    reason="a compiled class's methods cannot be replaced; the same source "
+                           "is checked by the pure-Python run")
+@settings(max_examples=25, deadline=None)
+@given(st.lists(_move, min_size=1, max_size=6))
+def test_filament_runs_are_batched_as_one_interrupt_at_a_time_would_run_them(moves):
+    """With filament in the drives, runs of interrupts (cruise batches and the ramp
+    loop, bounded by each drive's own steps to its index wheel's next edge) give what
+    one interrupt per call gives: every reply, wheel level, position and tick."""
+    fast = filament_session(fresh_wire(), moves)
+    slow_wire = fresh_wire()
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        one_interrupt_at_a_time(monkeypatch, slow_wire)
+        slow = filament_session(slow_wire, moves)
+    assert fast == slow
+
+
 @pytest.mark.skipif("robox.firmware.main" in compiled_modules(),
                     reason="a compiled class's methods cannot be replaced; the same source "
                            "is checked by the pure-Python run")
