@@ -225,7 +225,6 @@ class Motion:
         self._manage_motor_currents()
 
     def _monitor_index_wheels(self) -> None:
-        pa = self.pa
         m = self.machine
         now = self.fw.clock.now
         invert = self.fw.parameters.invert_switch
@@ -252,21 +251,11 @@ class Motion:
                 continue
             counters[i] = 0
             until_slip = self.what == UNTIL_SLIP
-            threshold_mm = pa["filament_until_slip_threshold" if until_slip
-                              else "filament_slip_threshold"]
-            spu: float = self.fw.parameters.steps_per_unit[axis]
-            temp = float32(float32(float32(spu * threshold_mm)
-                                   * self.fw.position.filament_multiplier(i)) * 65536.0)
-            threshold = int(temp) if temp < 2147483648.0 else 0x7FFFFFFF
+            threshold = self._slip_threshold(i)
             if until_slip and self.filament_slip:
                 acc[axis] &= 0xFFFF
                 continue
-            count = acc[axis]  # the 32-bit accumulator read as a signed long: its magnitude
-            if count & 0x80000000:
-                count -= 1 << 32
-            if count < 0:
-                count = -count
-            if count > threshold:
+            if self._slip_count(axis) > threshold:
                 acc[axis] &= 0xFFFF
                 self.filament_slip = True
                 if self.what == LOADING:
@@ -275,6 +264,23 @@ class Motion:
                     self.fw.errors.set(ErrorBit.D_UNLOAD_SLIP if i else ErrorBit.E_UNLOAD_SLIP)
                 elif self.what == NORMAL:
                     self.slip_error[i] = True
+
+    def _slip_threshold(self, i: int) -> int:
+        """The count (16.16, steps since the wheel's last edge) past which drive i's
+        filament has slipped."""
+        threshold_mm = self.pa["filament_until_slip_threshold" if self.what == UNTIL_SLIP
+                               else "filament_slip_threshold"]
+        spu: float = self.fw.parameters.steps_per_unit[E + i]
+        temp = float32(float32(float32(spu * threshold_mm)
+                               * self.fw.position.filament_multiplier(i)) * 65536.0)
+        return int(temp) if temp < 2147483648.0 else 0x7FFFFFFF
+
+    def _slip_count(self, axis: int) -> int:
+        """The drive's accumulator read as a signed long: its magnitude."""
+        count: int = self.acc[axis]
+        if count & 0x80000000:
+            count -= 1 << 32
+        return -count if count < 0 else count
 
     def _monitor_z_top_switch(self) -> None:
         if self.machine.z_top_pin():
@@ -486,11 +492,34 @@ class Motion:
 
     def can_run_ahead(self) -> bool:
         """Whether the loop may skip passes while motion runs: nothing the foreground
-        watches pass by pass can change (no filament whose slip is counted, the Z-top
-        switch open)."""
+        watches pass by pass can change. The Z-top switch is open; and for each drive
+        with filament in it, the filament is at its sensor (else the automatic load
+        watches the wheel pass by pass) and its slip count, with every step the queued
+        blocks still make on it, stays within the slip threshold (an index edge only
+        lowers it): no pass in between could find a slip."""
         m = self.machine
-        return (m.filament[E] is None and m.filament[D] is None and m.z_top_pin() == 1
-                and not m.hand_busy())
+        if m.z_top_pin() != 1 or m.hand_busy():
+            return False
+        invert = self.fw.parameters.invert_switch
+        for i in range(2):
+            axis = E + i  # then D
+            if m.filament[axis] is None:
+                continue
+            if m.switch_pin(axis) == invert[axis]:
+                return False
+            if self.what == UNTIL_SLIP and self.filament_slip:
+                return False
+            ahead: i64 = 0  # 16.16: the steps the queued blocks make on this drive
+            n = self.buffer_out
+            while n != self.buffer_in:
+                blk = self.block[n]
+                step: i64 = blk.inc[axis]
+                if step:
+                    ahead += (step if step > 0 else -step) * blk.length
+                n = (n + 1) & MASK
+            if self._slip_count(axis) + ahead + 65536 > self._slip_threshold(i):
+                return False
+        return True
 
     def run_ahead(self, until: float, kind: str) -> float | None:
         """Run the interrupts due by `until`, stopping after the one that leaves the queue

@@ -74,6 +74,8 @@ ANCHOR_PLAIN_MM = 1.0
 SAME_Z_MM = 0.005
 #: How far (mm) a joint may stand off the line for two stretches to be merged.
 STRAIGHT_MM = 0.01
+#: The steps a valve move and the plastic fed in the same run of steps are taken in.
+INTERLEAVE = 16
 #: Rows: x0, y0, x1, y1, z, deposited, driven, nozzle, path (-1: a travel).
 COLUMNS = ("x0", "y0", "x1", "y1", "z", "deposited", "driven", "nozzle", "path")
 
@@ -116,6 +118,9 @@ class Deposition:
         self._pending_z = 0.0  # the nozzle's height when it came
         self._nozzle = self._path = -1
         self.shut_fed_mm3 = 0.0  # fed into a head with its feed's nozzles shut
+        self.feed_waiting = False  # plastic fed in the run of steps under way
+        self._feed_axis = E_AXIS
+        self._feed_mm3 = 0.0
         self.slipped_steps = 0
 
     # ------------------------------------------------------------ machine calls
@@ -129,33 +134,60 @@ class Deposition:
 
     def fed(self, axis: int, steps: int) -> int:
         """`steps` of filament reach the nozzle end of feed `axis`; how many it takes
-        (fewer when a shut head is full)."""
+        (fewer when a shut head is full). The plastic waits for the rest of the run of
+        steps (`feed_waiting`): a valve step in the same run moves with it."""
+        self.flush_feed()
         mm3 = steps * self.mm3_per_step[axis]
-        for n, feed in enumerate(self.feed_axis):
-            if feed == axis and self.opening[n] > 0.0:
-                self._out(n, mm3, mm3)
-                return steps
-        room = PRESSURE_LIMIT_MM3 - self.pressure[axis]
-        if mm3 > room:
-            taken = max(0, int(room / self.mm3_per_step[axis]))
-            self.slipped_steps += steps - taken
-            steps = taken
-            mm3 = taken * self.mm3_per_step[axis]
-        self.pressure[axis] += mm3
-        self.shut_fed_mm3 += mm3
+        if not self._open_for(axis):
+            room = PRESSURE_LIMIT_MM3 - self.pressure[axis]
+            if mm3 > room:
+                taken = max(0, int(room / self.mm3_per_step[axis]))
+                self.slipped_steps += steps - taken
+                steps = taken
+                mm3 = taken * self.mm3_per_step[axis]
+        self._feed_axis = axis
+        self._feed_mm3 = mm3
+        self.feed_waiting = mm3 > 0.0
         return steps
+
+    def flush_feed(self) -> None:
+        """The waiting plastic, now (the run of steps it came in is over)."""
+        if self.feed_waiting:
+            self.feed_waiting = False
+            self._feed(self._feed_axis, self._feed_mm3)
 
     def drawn_back(self, axis: int, steps: int) -> None:
         """The feed `axis` draws its filament back: what the head held under pressure
         goes with it."""
+        self.flush_feed()
         held = self.pressure[axis]
         if held > 0.0:
             self.pressure[axis] = max(0.0, held - steps * self.mm3_per_step[axis])
 
     def valve(self, b: int) -> None:
-        """The valve's motor now stands at `b` microsteps."""
+        """The valve's motor now stands at `b` microsteps. Plastic fed in the same run
+        of steps came while the needle moved: the two are taken together, a little of
+        each at a time (the void an opening leaves filling as it opens)."""
+        if self.feed_waiting:
+            self.feed_waiting = False
+            axis, mm3, start = self._feed_axis, self._feed_mm3, self.b
+            for k in range(1, INTERLEAVE + 1):
+                self._set_openings(start + (b - start) * k // INTERLEAVE, record=True)
+                self._feed(axis, mm3 / INTERLEAVE)
         self.b = b
         self._set_openings(b, record=True)
+
+    def _open_for(self, axis: int) -> bool:
+        return any(feed == axis and self.opening[n] > 0.0
+                   for n, feed in enumerate(self.feed_axis))
+
+    def _feed(self, axis: int, mm3: float) -> None:
+        for n, feed in enumerate(self.feed_axis):
+            if feed == axis and self.opening[n] > 0.0:
+                self._out(n, mm3, mm3)
+                return
+        self.pressure[axis] += mm3
+        self.shut_fed_mm3 += mm3
 
     # ------------------------------------------------------------ the plastic
     def _set_openings(self, b: int, record: bool) -> None:
@@ -257,6 +289,7 @@ class Deposition:
 
     def finish(self) -> None:
         """Close the record: the plastic still waiting where the head stands."""
+        self.flush_feed()
         self._standing()
 
     def _open_path(self, n: int) -> None:

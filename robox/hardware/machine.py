@@ -182,6 +182,9 @@ class Machine:
     # ------------------------------------------------------------ motors
     def step(self, axis: int, n: int) -> None:
         """`n` microsteps (signed) of one of the firmware's axes."""
+        dep = self.deposition
+        if dep is not None and dep.feed_waiting and axis <= Z:
+            dep.flush_feed()  # (a run of steps moves X, Y, Z, E, D, B in that order)
         if axis == X:
             self.x += n
         elif axis == Y:

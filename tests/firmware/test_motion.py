@@ -121,7 +121,7 @@ def test_runs_of_interrupts_and_skipped_passes_change_nothing(monkeypatch):
     assert len(fast) == 85 and fast == slow
 
 
-def filament_session(wire, moves: list[str]) -> list[bytes]:
+def filament_session(wire, moves: list[str], slip_from: int = -1) -> list[bytes]:
     """A hot nozzle with filament 2 mm short of it: moves that push, extrude and draw
     back, with every reply, the index wheels' reports and the machine at the end."""
     from robox.hardware.machine import NOZZLE_MM
@@ -133,7 +133,9 @@ def filament_session(wire, moves: list[str]) -> list[bytes]:
         m.heaters[name].temperature = 210.0
     out = []
     motion = wire.fw.motion
-    for text in ("M104 S210 T210", "G28 X Y", *moves):
+    for n, text in enumerate(("M104 S210 T210", "G28 X Y", *moves)):
+        if n == slip_from:  # the wheel stops turning: the slip count runs up to its limit
+            m.wheel_slipping[E] = True
         wire.gcode(job_text([text]))
         for _ in range(2):
             wire.printer.run_until(lambda: False, 0.173)
@@ -172,16 +174,60 @@ _move = st.builds(
                     reason="a compiled class's methods cannot be replaced; the same source "
                            "is checked by the pure-Python run")
 @settings(max_examples=25, deadline=None)
-@given(st.lists(_move, min_size=1, max_size=6))
-def test_filament_runs_are_batched_as_one_interrupt_at_a_time_would_run_them(moves):
+@given(st.lists(_move, min_size=1, max_size=6), st.integers(-1, 7))
+def test_filament_runs_are_batched_as_one_interrupt_at_a_time_would_run_them(moves,
+                                                                              slip_from):
     """With filament in the drives, runs of interrupts (cruise batches and the ramp
-    loop, bounded by each drive's own steps to its index wheel's next edge) give what
-    one interrupt per call gives: every reply, wheel level, position and tick."""
-    fast = filament_session(fresh_wire(), moves)
+    loop, bounded by each drive's own steps to its index wheel's next edge) and the
+    passes skipped while only motion is awaited (where no slip count can reach its
+    threshold) give what one interrupt per call and one pass per millisecond give:
+    every reply, wheel level, slip count, position and tick; also when a wheel stops
+    turning part-way and the slip is found."""
+    fast = filament_session(fresh_wire(), moves, slip_from)
     slow_wire = fresh_wire()
     with pytest.MonkeyPatch.context() as monkeypatch:
         one_interrupt_at_a_time(monkeypatch, slow_wire)
-        slow = filament_session(slow_wire, moves)
+        slow = filament_session(slow_wire, moves, slip_from)
+    assert fast == slow
+
+
+def slipping_job_session(wire, slip_at_line: int) -> list[bytes]:
+    """A printing job whose filament stops turning its wheel at a line: the slips the
+    job's boss finds, its retries and the pause, sampled every half second."""
+    m = wire.printer.hw.machine
+    m.insert_filament(E, tip_mm=379.0)
+    m.heaters["nozzle0"].temperature = 210.0
+    lines = ["M104 S210", "G92 X0 Y0 Z0"] + [
+        f"G1 X{10 + i % 5 * 3} Y{i % 7} E{1 + i % 3} F{600 + 300 * (i % 4)}"
+        for i in range(60)]
+    wire.upload("slips", job_text(lines))
+    wire.ok(b"\x94" + b"slips".ljust(16, b"\0"))
+    motion = wire.fw.motion
+    out = []
+    for _ in range(80):
+        wire.printer.run_until(lambda: False, 0.5)
+        if wire.fw.job.line_number >= slip_at_line:
+            m.wheel_slipping[E] = True
+        out.append(wire.raw(b"\xb0"))
+        out.append(repr((wire.fw.job.line_number, wire.fw.job.pause, list(motion.acc),
+                         list(wire.fw.job.slip_count), wire.fw.errors.bits,
+                         motion.interrupts, wire.fw.clock.now)).encode())
+    return out
+
+
+@pytest.mark.skipif("robox.firmware.motion" in compiled_modules(),
+                    reason="a compiled class's methods cannot be replaced; the same source "
+                           "is checked by the pure-Python run")
+@pytest.mark.parametrize("slip_at_line", [4, 25, 1000])
+def test_passes_skipped_with_filament_in_find_a_slip_at_the_same_pass(slip_at_line):
+    """A print with filament in: the loop skips passes while only motion is awaited
+    and no slip count can reach its threshold; when the wheel stops, the slip is found,
+    retried and the job paused at the very pass one pass at a time finds them."""
+    fast = slipping_job_session(fresh_wire(), slip_at_line)
+    slow_wire = fresh_wire()
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        one_interrupt_at_a_time(monkeypatch, slow_wire)
+        slow = slipping_job_session(slow_wire, slip_at_line)
     assert fast == slow
 
 
