@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The firmware model on a real slicer's G-code: upload through the protocol, print to the end.
 
-Usage: python bench/model.py [--quick]
+Usage: python bench/model.py [--quick] [--empty]
 Needs slic3r on the PATH (Debian: apt-get install slic3r), and PrusaSlicer
 (apt-get install prusa-slicer) for the second part. The model is made here (a
 twisted star tower, written as a binary STL); the G-code is cached in
@@ -17,13 +17,22 @@ same file (`for line in f: line.split()`) timed in the same run:
    saved): lines/s of the slicer's file, the ratio to the trivial loop, peak
    resident memory. With --quick on a 1.8 MB file (69k lines); without, on that
    file and on a larger, finer tower (12 MB, 427k lines), and the ratio of
-   their peak memories.
+   their peak memories;
+3. `robox-cli simulate FILE --json` on the same files (translated, printed on a fresh
+   virtual printer with its deposition record): lines/s and the ratio.
+
+The printer has filament in its feed, up to the nozzle, as every real print has (the
+model alone: in the machine; the whole path: `sim load` in its state directory;
+simulate loads its own); `--empty` measures the printer with empty feeds instead
+(simulate is then left out). Each figure gives wall and CPU seconds (the process's
+own, or the child's) and simulated time over each.
 
 Asserts nothing.
 """
 
 import json
 import math
+import resource
 import shutil
 import struct
 import subprocess
@@ -35,6 +44,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from robox.hardware.machine import NOZZLE_MM, E  # noqa: E402
 from robox.native import describe  # noqa: E402
 from robox.sim.printer import VirtualPrinter  # noqa: E402
 from tests.firmware.wire import Wire, hexn, ident  # noqa: E402
@@ -158,39 +168,68 @@ runpy.run_module("robox.cli", run_name="__main__")
 """
 
 
-def robox_cli(*args: str) -> tuple[bytes, float]:
-    """Run robox-cli with `args` in its own process: its output and its peak resident
+def robox_cli(*args: str, ok: tuple[int, ...] = (0,)) -> tuple[bytes, float, float]:
+    """Run robox-cli with `args` in its own process: its output, its peak resident
     memory in MB (VmHWM, which counts from the exec: getrusage's maxrss would count the
-    pages of this process the child shared between fork and exec)."""
+    pages of this process the child shared between fork and exec) and its CPU seconds."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     child = subprocess.run([sys.executable, "-c", PEAK_PROBE, *args], cwd=ROOT,
                            capture_output=True)
-    if child.returncode:
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if child.returncode not in ok:
         raise SystemExit(f"robox-cli {' '.join(args)} failed: {child.stderr.decode()}")
     kb = int(child.stderr.decode().rsplit("peak-rss-kb ", 1)[1].split()[0])
-    return child.stdout, kb / 1024
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return child.stdout, kb / 1024, cpu
 
 
-def whole_path(path: Path) -> float:
-    """robox-cli send-job --wait on a fresh state directory, in its own process; the peak
-    resident memory in MB."""
+def whole_path(path: Path, loaded: bool) -> float:
+    """robox-cli send-job --wait on a fresh state directory (filament in its feed unless
+    `loaded` is False), in its own process; the peak resident memory in MB."""
+    from robox.sim.printer import NOZZLE_MM, create_state, write_filament
+
     with open(path, "rb") as f:
         lines = sum(1 for _ in f)
     plain = plain_loop_rate(path)
     with tempfile.TemporaryDirectory() as tmp:
+        state = Path(tmp) / "printer"
+        create_state(state)
+        if loaded:
+            write_filament(state, {"E": {"length_mm": 240_000.0, "tip_mm": NOZZLE_MM},
+                                   "D": None})
         start = time.perf_counter()
-        out, peak = robox_cli("--device", f"sim-once:{tmp}/printer", "send-job", str(path),
-                              "--wait", "--json")
+        out, peak, cpu = robox_cli("--device", f"sim-once:{state}", "send-job", str(path),
+                                   "--wait", "--json")
         wall = time.perf_counter() - start
     summary = json.loads(out)
     rate = lines / wall
+    simulated = summary["simulated_print_time_s"]
     print(f"PrusaSlicer G-code {path.name}: {path.stat().st_size / 1e6:.2f} MB, {lines} "
-          "lines, through robox-cli --device sim-once:DIR send-job --wait")
-    print(f"  whole path: {wall:.2f} s wall, {rate:,.0f} lines/s; trivial loop "
-          f"{plain:,.0f} lines/s; ratio {rate / plain:.4f}")
-    print(f"  simulated print time {summary['simulated_print_time_s'] / 3600:.2f} h; "
-          f"simulated / wall = {summary['simulated_print_time_s'] / wall:,.0f}x; "
+          "lines, through robox-cli --device sim-once:DIR send-job --wait "
+          f"({'filament in the feed' if loaded else 'empty feeds'})")
+    print(f"  whole path: {wall:.2f} s wall, {cpu:.2f} s CPU, {rate:,.0f} lines/s; trivial "
+          f"loop {plain:,.0f} lines/s; ratio {rate / plain:.4f}")
+    print(f"  simulated print time {simulated / 3600:.2f} h; simulated / wall = "
+          f"{simulated / wall:,.0f}x, / CPU = {simulated / cpu:,.0f}x; "
           f"peak RSS {peak:.0f} MB; errors {summary['errors'] or 'none'}")
     return peak
+
+
+def simulate_path(path: Path) -> None:
+    """robox-cli simulate FILE --json in its own process."""
+    with open(path, "rb") as f:
+        lines = sum(1 for _ in f)
+    plain = plain_loop_rate(path)
+    start = time.perf_counter()
+    out, peak, cpu = robox_cli("simulate", str(path), "--json", ok=(0, 1))
+    wall = time.perf_counter() - start
+    report = json.loads(out)
+    rate = lines / wall
+    simulated = report["print_time_s"]
+    d = report["deposition"] or {}
+    print(f"  simulate: {wall:.2f} s wall, {cpu:.2f} s CPU, {rate:,.0f} lines/s; ratio "
+          f"{rate / plain:.4f}; simulated / CPU = {simulated / cpu:,.0f}x; peak RSS "
+          f"{peak:.0f} MB; blobs {d.get('blob_mm3')} mm3, starved {d.get('starved_mm')} mm")
 
 
 def host_text(raw: bytes) -> bytes:
@@ -211,10 +250,14 @@ def main() -> None:
     path = sliced_gcode(quick)
     job = host_text(path.read_bytes())
     lines = job.count(b"\r")
+    loaded = "--empty" not in sys.argv
     printer = VirtualPrinter(card_blocks=4 * 65536)
+    if loaded:  # filament up to the nozzle (the machine's own physics, no record)
+        printer.hw.machine.insert_filament(E, tip_mm=NOZZLE_MM)
     wire = Wire(printer)
     printer.settle()
     wire.clear()
+    cpu0 = time.process_time()
     start = time.perf_counter()
     wire.ok(b"\x97" + ident("bench"))
     chunks = len(job) // 512
@@ -230,18 +273,19 @@ def main() -> None:
         wire.ok(b"\x980")
     printer.run_until(lambda: not printer.firmware.job.running, 10 * 24 * 3600)
     wall = time.perf_counter() - start
+    cpu = time.process_time() - cpu0
     fw = printer.firmware
     simulated = fw.clock.now
     print(f"firmware model: {describe()}")
     print(f"slic3r G-code {path.name}: {len(job) / 1e6:.2f} MB sent, {lines} lines, "
-          f"{chunks + 1} chunks")
+          f"{chunks + 1} chunks ({'filament in the feed' if loaded else 'empty feeds'})")
     print(f"  upload (printing meanwhile): {uploaded:.2f} s, {len(job) / 1e6 / uploaded:.2f} MB/s,"
           f" {lines_during_upload} lines printed by its end")
     plain = plain_loop_rate(path)
-    print(f"  whole job: {wall:.2f} s wall, {lines / wall:,.0f} G-code lines/s; trivial loop "
-          f"{plain:,.0f} lines/s; ratio {lines / wall / plain:.4f}")
+    print(f"  whole job: {wall:.2f} s wall, {cpu:.2f} s CPU, {lines / wall:,.0f} G-code "
+          f"lines/s; trivial loop {plain:,.0f} lines/s; ratio {lines / wall / plain:.4f}")
     print(f"  simulated print time {simulated / 3600:.2f} h; simulated / wall = "
-          f"{simulated / wall:,.0f}x")
+          f"{simulated / wall:,.0f}x, / CPU = {simulated / cpu:,.0f}x")
     print(f"  finished: {('job finished', ident('bench')) in fw.events}; "
           f"filament used {fw.position.extruded_mm[0] / 1000:.2f} m")
     sizes = ["quick"] if quick else ["quick", "large"]
@@ -249,7 +293,11 @@ def main() -> None:
     if None in paths:
         print("PrusaSlicer not found (apt-get install prusa-slicer): whole path not measured")
         return
-    peaks = [whole_path(prusa) for prusa in paths]
+    peaks = []
+    for prusa in paths:
+        peaks.append(whole_path(prusa, loaded))
+        if loaded:
+            simulate_path(prusa)
     if len(peaks) == 2:
         sizes_mb = [p.stat().st_size / 1e6 for p in paths]
         print(f"  peak RSS, {sizes_mb[1]:.1f} MB job over {sizes_mb[0]:.1f} MB job: "

@@ -107,6 +107,65 @@ def stop_cmd(state_dir: str | None, as_json: bool) -> None:
         click.echo(f"stopped the virtual printer (PID {record.get('pid')}); state {directory}")
 
 
+@sim.command("load")
+@STATE_OPTION
+@click.option("--feed", type=click.Choice(["E", "D", "both"]), default="E",
+              show_default=True, help="The feed to load (D: reel 1 on a dual-material head).")
+@click.option("--metres", type=click.FloatRange(0.001, 10_000.0), default=240.0,
+              show_default=True, help="Filament in the feed, from its tip back.")
+@click.option("--at", "where", type=click.Choice(["nozzle", "drive"]), default="nozzle",
+              show_default=True,
+              help="Where its tip is: at the nozzle (ready to print) or just in the drive.")
+@json_option
+def load_cmd(state_dir: str | None, feed: str, metres: float, where: str,
+             as_json: bool) -> None:
+    """Put filament in the virtual printer's feeds, as a loaded printer has.
+
+    Recorded in the state directory (filament.json) and taken by the printer the next
+    time it is switched on (`sim serve`, `--device sim`, `sim-once:DIR`); a printer
+    being served is refused: `robox-cli sim stop` it first. At power-up a new virtual
+    printer has empty feeds, as the spec says."""
+    from robox.sim.printer import NOZZLE_MM
+
+    tip = NOZZLE_MM if where == "nozzle" else 0.0
+    _edit_feeds(_directory(state_dir), feed, {"length_mm": metres * 1000.0, "tip_mm": tip},
+                as_json)
+
+
+@sim.command("unload")
+@STATE_OPTION
+@click.option("--feed", type=click.Choice(["E", "D", "both"]), default="both",
+              show_default=True)
+@json_option
+def unload_cmd(state_dir: str | None, feed: str, as_json: bool) -> None:
+    """Take the filament out of the virtual printer's feeds (see `sim load`)."""
+    _edit_feeds(_directory(state_dir), feed, None, as_json)
+
+
+def _edit_feeds(directory: Path, feed: str, value: dict | None, as_json: bool) -> None:
+    """Set the state directory's filament record for `feed`, under its lock (a served
+    printer's directory is refused with the PID that has it)."""
+    from robox.locks import DirectoryLock
+    from robox.sim.printer import create_state, read_filament, write_filament
+
+    create_state(directory)
+    lock = DirectoryLock(directory, "sim load")
+    try:
+        feeds = read_filament(directory)
+        for name in ("E", "D") if feed == "both" else (feed,):
+            feeds[name] = value
+        write_filament(directory, feeds)
+    finally:
+        lock.release()
+    if as_json:
+        emit_json({"state": str(directory), "filament": feeds})
+        return
+    for name, f in feeds.items():
+        text = "empty" if f is None else \
+            f"{f['length_mm'] / 1000.0:g} m, tip {f['tip_mm']:g} mm along the path"
+        click.echo(f"feed {name}: {text}")
+
+
 def _duration(seconds: float) -> str:
     seconds = max(0, int(seconds))
     hours, rest = divmod(seconds, 3600)

@@ -100,6 +100,7 @@ class Deposition:
     seats: tuple[float, float] = (0.0, 0.0)  # B where nozzle 0, nozzle 1 shut
     rows: dict[str, array] = field(default_factory=lambda: {c: array("d") for c in COLUMNS})
     paths: list[Path] = field(default_factory=list)
+    recording: bool = True  # False: the valve's and the pressure's physics, no record
 
     def __post_init__(self) -> None:
         nozzles = len(self.valves.feeds)
@@ -225,6 +226,8 @@ class Deposition:
         void = self.void[n]
         swallowed = mm3 if mm3 < void else void
         self.void[n] = void - swallowed
+        if not self.recording:
+            return
         m = self.machine
         here = (m.x / XY_STEPS, m.y / XY_STEPS)
         start = self._anchor
@@ -293,6 +296,9 @@ class Deposition:
         self._standing()
 
     def _open_path(self, n: int) -> None:
+        if not self.recording:
+            self.path_of[n] = 0
+            return
         m = self.machine
         self._standing()
         here = (m.x / XY_STEPS, m.y / XY_STEPS)
@@ -306,7 +312,7 @@ class Deposition:
 
     def _close_path(self, n: int) -> None:
         number = self.path_of[n]
-        if number >= 0:
+        if number >= 0 and self.recording:
             m = self.machine
             path = self.paths[number]
             path.end = (m.x / XY_STEPS, m.y / XY_STEPS)

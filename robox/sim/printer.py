@@ -7,10 +7,16 @@ offline tools):
     reel0.eeprom
     reel1.eeprom    only with a dual-reel adaptor (its presence fits the mux)
     flash.bin       the 128 KiB flash, written through
+    filament.json   the filament in the feeds, where there is any (`robox-cli sim
+                    load`): {"E": {"length_mm": .., "tip_mm": ..}, "D": ...}, tip_mm
+                    along the path from the drive (380: at the nozzle); saved as the
+                    printer switches off. Without it the feeds are empty, as at power-up.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,12 +24,15 @@ from pathlib import Path
 from robox.errors import ImageError, RoboxError
 from robox.fileio import write_atomically
 from robox.firmware.main import Firmware, Hardware
-from robox.formats.eeprom import CHIP_SIZE, EepromIndex
+from robox.formats.eeprom import CHIP_SIZE, EepromIndex, fields_of, loaded_bank, read_bank
 from robox.formats.firmware import FLASH_SIZE
+from robox.formats.heads import HeadValves, head_valves
 from robox.formats.protocol import reply_length
+from robox.hardware.deposition import Deposition
 from robox.hardware.eeprom import EepromChip
 from robox.hardware.eeprom_bus import EepromBus
 from robox.hardware.flash import Flash
+from robox.hardware.machine import NOZZLE_MM, STEPS_PER_MM, D, E
 from robox.hardware.sdcard import SdCard
 from robox.hardware.storage import FileStorage, MemoryStorage
 from robox.hardware.usb import PACKET_SIZE
@@ -35,6 +44,80 @@ CARD_SIZE = "64MiB"
 BUNDLED_CARD = Path(__file__).resolve().parent.parent / "data" / "sdcard.img"
 CHIP_FILES = {EepromIndex.HEAD: "head.eeprom", EepromIndex.REEL0: "reel0.eeprom",
               EepromIndex.REEL1: "reel1.eeprom"}
+FILAMENT_FILE = "filament.json"
+FEEDS = {"E": E, "D": D}
+
+
+def read_filament(directory: Path) -> dict[str, dict[str, float] | None]:
+    """The filament a state directory says is in each feed (None: empty)."""
+    path = directory / FILAMENT_FILE
+    if not path.exists():
+        return dict.fromkeys(FEEDS)
+    try:
+        data = json.loads(path.read_text())
+        out: dict[str, dict[str, float] | None] = {}
+        for name in FEEDS:
+            feed = data.get(name)
+            if feed is None:
+                out[name] = None
+                continue
+            length, tip = float(feed["length_mm"]), float(feed["tip_mm"])
+            if not (0.0 < length < 1e7 and -1e6 < tip <= NOZZLE_MM and math.isfinite(tip)):
+                raise ValueError(f"{name}: length_mm {length}, tip_mm {tip}")
+            out[name] = {"length_mm": length, "tip_mm": tip}
+        return out
+    except (OSError, ValueError, TypeError, KeyError, AttributeError) as e:
+        raise ImageError(f"{path}: not a filament record ({e})") from None
+
+
+def _chip_fields(chip: EepromChip | None, kind: str = "head") -> dict:
+    if chip is None:
+        return {}
+    data = bytes(chip.data)
+    bank = loaded_bank(data)
+    return {} if bank is None else fields_of(kind, read_bank(data, bank))
+
+
+def reel_diameter_of(chip: EepromChip | None) -> float:
+    """The reel's filament diameter (1.75 mm where it cannot be read)."""
+    try:
+        value = float(_chip_fields(chip, "reel").get("filament_diameter", 1.75))
+    except (TypeError, ValueError):
+        return 1.75
+    return value if 0.5 <= value <= 5.0 else 1.75
+
+
+def head_valves_of(chip: EepromChip | None) -> HeadValves:
+    """The valves of the head in the socket (by its type code; a single-material head
+    where it cannot be read)."""
+    code = str(_chip_fields(chip).get("type_code", "")).strip()
+    try:
+        return head_valves(code or "RBX01-SM")
+    except RoboxError:
+        return head_valves("RBX01-SM")
+
+
+def head_seats_of(chip: EepromChip | None) -> tuple[float, float]:
+    """Where the head's needles shut: its EEPROM's B offsets (calibration measures them
+    there)."""
+    f = _chip_fields(chip)
+    seats = []
+    for name in ("nozzle0_b_offset", "nozzle1_b_offset"):
+        try:
+            value = float(f.get(name, 0.0))
+        except (TypeError, ValueError):
+            value = 0.0
+        seats.append(value if math.isfinite(value) else 0.0)
+    return seats[0], seats[1]
+
+
+def write_filament(directory: Path, feeds: dict[str, dict[str, float] | None]) -> None:
+    """Record the filament in each feed (the file goes when every feed is empty)."""
+    path = directory / FILAMENT_FILE
+    if all(feed is None for feed in feeds.values()):
+        path.unlink(missing_ok=True)
+        return
+    write_atomically(path, (json.dumps(feeds, indent=1, sort_keys=True) + "\n").encode())
 
 
 def default_state_dir() -> Path:
@@ -149,6 +232,21 @@ class VirtualPrinter:
                 chip.clock = self.hw.clock
         self._saved_writes = [c.writes if c else 0 for c in bus.sockets]
         self._chip_dumps: dict[int, FileStorage] = {}  # dumps open to write in place
+        self._filament_loaded = False
+        if self.state_dir is not None:
+            for name, feed in read_filament(self.state_dir).items():
+                if feed is not None:
+                    self.hw.machine.insert_filament(FEEDS[name], feed["length_mm"],
+                                                    feed["tip_mm"])
+                    self._filament_loaded = True
+        if self._filament_loaded:
+            # with filament in, the needle's physics (a shut head fills, then the drive
+            # slips: what G36 waits for) without the record simulate keeps
+            Deposition(head_valves_of(chips.get(EepromIndex.HEAD)),
+                       (reel_diameter_of(chips.get(EepromIndex.REEL0)),
+                        reel_diameter_of(chips.get(EepromIndex.REEL1))),
+                       head_seats_of(chips.get(EepromIndex.HEAD)),
+                       recording=False).attach(self.hw.machine)
         self.firmware = Firmware(self.hw)
 
     def _open(self, path: Path) -> FileStorage:
@@ -240,9 +338,25 @@ class VirtualPrinter:
                 dump.write(0, data)
                 self._saved_writes[index] = chip.writes
 
+    def save_filament(self) -> None:
+        """Record where the filament in the feeds now is (a state directory's printer
+        that had some: what a print used, drew back or ran out of)."""
+        if self.state_dir is None or not self._filament_loaded:
+            return
+        machine = self.hw.machine
+        feeds: dict[str, dict[str, float] | None] = {}
+        for name, axis in FEEDS.items():
+            f = machine.filament[axis]
+            steps = STEPS_PER_MM[axis]
+            feeds[name] = None if f is None or f.tip <= f.tail else {
+                "length_mm": round((f.tip - f.tail) / steps, 3),
+                "tip_mm": round(f.tip / steps, 3)}
+        write_filament(self.state_dir, feeds)
+
     def close(self) -> None:
         if getattr(self, "hw", None) is not None:
             self.save_chips()
+            self.save_filament()
         self._chip_dumps = {}
         for storage in self._files:
             storage.flush()
