@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+import importlib
+
 # Loaded before any test activates pyfakefs: robox imports numpy lazily, and numpy
 # cannot be first imported from inside a fake file system.
 import numpy as np
 
+from robox.cli import LAZY_COMMANDS
 from robox.firmware.file_system import FileSystem
+
+# robox-cli imports a command's module when the command runs: here, before any test
+# runs one inside pyfakefs, which cannot patch a module first imported under it
+for _module, _attribute, _help in LAZY_COMMANDS.values():
+    importlib.import_module(_module)
 
 
 def upload(fs: FileSystem, file_id: bytes | str, data: bytes, job: bool = True) -> bool:

@@ -9,8 +9,7 @@ import click
 
 from robox.cli.common import EXIT_PROBLEM, emit_json, json_option
 from robox.errors import UsageError
-from robox.gcode import Options, roboxise_file
-from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
+from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT
 
 nozzle_option = click.option(
     "--nozzle", type=click.IntRange(0, 1),
@@ -69,6 +68,8 @@ def roboxise_cmd(source: str, target: str, filament_diameter: float, head: str,
                  no_sequences: bool, as_json: bool) -> None:
     """Translate a slicer's G-code IN into a Robox job OUT: E to cubic millimetres, the
     needle valve for retractions, Robox temperature codes, start and end sequences."""
+    from robox.gcode import Options, roboxise_file
+
     options = Options(filament_diameter=(filament_diameter, filament_diameter), head=head,
                       nozzle=nozzle, macros=macros, sequences=not no_sequences, valve=valve,
                       ejection=parse_ejection(ejection))

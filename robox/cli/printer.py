@@ -19,18 +19,13 @@ from robox.cli.gcode import (
     valve_option,
 )
 from robox.errors import NotFoundError, RoboxError, UsageError
-from robox.formats.firmware import image_revision
+from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT
 from robox.formats.protocol import error_names
 from robox.formats.sdcard import default_id, make_id
-from robox.gcode import JobFile, Options, job_file
-from robox.gcode.files import inspect
-from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
 from robox.host import catalogue
 from robox.host.client import DEFAULT_TIMEOUT_MS, EEPROMS, CatchUpPoints, catch_up_lines
 from robox.host.devices import NoPrinter, list_printers, open_printer
 from robox.host.transport import Disconnected
-from robox.offline.eeprom import parse_assignments
-from robox.offline.firmware import read_input
 
 WHICH = click.Choice(list(EEPROMS))
 POLL_S = 0.5
@@ -179,6 +174,9 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
     (see `roboxise`); any other file goes as it is."""
     if file_id is not None:
         make_id(file_id)  # refuses an empty or non-ASCII id before the printer is opened
+    from robox.gcode import job_file
+    from robox.gcode.files import inspect
+
     volumes = parse_ejection(ejection)
     detected = inspect(file)
     quiet = as_json or not sys.stderr.isatty()
@@ -223,7 +221,7 @@ def _minutes(seconds: float) -> str:
     return f"{seconds / 60:.1f} min" if seconds >= 60 else f"{seconds:.1f} s"
 
 
-def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
+def _upload(printer, file: str, job, file_id: str | None, resume: bool,
             wait: bool, quiet: bool) -> dict:
     """Send the job file (a chunk at a time) and, with `wait`, follow its print."""
     name = default_id(Path(file).stem, job.sha1) if file_id is None else file_id
@@ -272,8 +270,11 @@ def _upload(printer, file: str, job: JobFile, file_id: str | None, resume: bool,
 
 def printer_options(printer, filament_diameter: float | None, nozzle: int | None,
                     macros: Path | None, valve: str = "automaker",
-                    ejection: tuple[float, ...] | None = None) -> Options:
-    """Translation options from the printer's head and reels, and the user's."""
+                    ejection: tuple[float, ...] | None = None):
+    """Translation options (robox.gcode.Options) from the printer's head and reels, and
+    the user's."""
+    from robox.gcode import Options
+
     eeproms = printer.status().eeproms
     head = HEAD_DEFAULT
     if eeproms.get("head") == "valid":
@@ -482,6 +483,7 @@ def read_eeprom_cmd(ctx, which: str, as_json: bool) -> None:
 def write_eeprom_cmd(ctx, which: str, assignments: tuple[str, ...], as_json: bool) -> None:
     """Change fields of a head or reel EEPROM."""
     from robox.formats import eeprom as fmt
+    from robox.offline.eeprom import parse_assignments
 
     pairs = dict(parse_assignments(list(assignments)))
     kind = "head" if which == "head" else "reel"
@@ -520,6 +522,9 @@ def format_eeprom_cmd(ctx, which: str, yes: bool, as_json: bool) -> None:
 @click.pass_context
 def update_firmware_cmd(ctx, bin_file: str, as_json: bool) -> None:
     """Verify BIN, upload it, flash it, and check the printer comes back."""
+    from robox.formats.firmware import image_revision
+    from robox.offline.firmware import read_input
+
     image = read_input(bin_file)
     with device(ctx) as printer:
         before = printer.revision()

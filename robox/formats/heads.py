@@ -22,6 +22,10 @@ from dataclasses import dataclass
 
 from robox.errors import UsageError
 
+#: The head a job is translated for when the printer's cannot be read, and the filament
+#: diameter when its reel's cannot.
+HEAD_DEFAULT = "RBX01-SM"
+DEFAULT_DIAMETER = 1.75
 #: AutoMaker's partialBMinimum (50%): the least a short path's valve is opened.
 PARTIAL_B_MINIMUM = 0.5
 #: AutoMaker's maxClosesBeforeNozzleReselect: the nozzle is selected again (the firmware

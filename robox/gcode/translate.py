@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Final
 
 from robox.errors import UsageError
-from robox.formats.heads import head_kind, head_valves
+from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT, head_kind, head_valves
 from robox.gcode.text import code_part, number, words
 from robox.gcode.valve import ValveStage
 
@@ -63,8 +63,6 @@ FEATURE_NOZZLE = {
     "support material": 1, "support": 1,
 }
 
-DEFAULT_DIAMETER = 1.75
-HEAD_DEFAULT = "RBX01-SM"
 #: A single-material head prints extrusion widths from this up with its wide nozzle 1.
 WIDE_MM = 0.6
 #: The start sequence's purge (mm3 in all, shared by the nozzles the job uses), and the

@@ -51,13 +51,40 @@ class Attached:
     address: int | None
 
 
+# libusb's shared libraries by the names their packages install them under: loaded by
+# name, as the dynamic linker finds them, instead of pyusb's search (ctypes'
+# find_library runs ldconfig and a compiler, a tenth of a second of every command)
+LIBUSB1_NAMES = ("libusb-1.0.so.0", "libusb-1.0.so", "libusb-1.0.0.dylib", "libusb-1.0.dll")
+LIBUSB0_NAMES = ("libusb-0.1.so.4", "libusb.so")
+
+
+def _usb_backend():
+    """pyusb's backend over the libusb found by name (None: none installed)."""
+    import ctypes
+
+    for names, module in ((LIBUSB1_NAMES, "libusb1"), (LIBUSB0_NAMES, "libusb0")):
+        for name in names:
+            try:
+                ctypes.CDLL(name)
+            except OSError:
+                continue
+            import importlib
+
+            backend = importlib.import_module(f"usb.backend.{module}")
+            found = backend.get_backend(find_library=lambda _name, lib=name: lib)
+            if found is not None:
+                return found
+    return None
+
+
 def _usb_devices():
     import usb.core
 
-    try:
-        return list(usb.core.find(find_all=True, idVendor=VENDOR_ID, idProduct=PRODUCT_ID))
-    except usb.core.NoBackendError:
-        raise NoPrinter("no USB backend: install libusb (Debian: libusb-1.0-0)") from None
+    backend = _usb_backend()
+    if backend is None:
+        raise NoPrinter("no USB backend: install libusb (Debian: libusb-1.0-0)")
+    return list(usb.core.find(find_all=True, idVendor=VENDOR_ID, idProduct=PRODUCT_ID,
+                              backend=backend))
 
 
 def _connect(transport, timeout_ms: int, idle=None, take_over: bool = False) -> Printer:

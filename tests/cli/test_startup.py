@@ -1,0 +1,41 @@
+"""robox-cli starts light: a command's module is imported only when the command runs,
+and `--help` lists them all from a table (robox/cli/__init__.py)."""
+
+import subprocess
+import sys
+
+import click
+import pytest
+
+from robox.cli import LAZY_COMMANDS, cli
+
+HEAVY = ("robox.firmware.main", "robox.gcode.translate", "robox.sim.printer", "matplotlib")
+
+
+@pytest.mark.parametrize("limit", [45, 80, 200])
+def test_the_tables_help_is_each_commands_own(limit):
+    ctx = click.Context(cli)
+    for name, (_module, _attribute, text) in LAZY_COMMANDS.items():
+        command = cli.get_command(ctx, name)
+        assert command is not None and command.name == name
+        assert click.utils.make_default_short_help(text, limit) == \
+            command.get_short_help_str(limit), name
+    assert set(cli.list_commands(ctx)) == set(LAZY_COMMANDS)
+
+
+def loaded_after(*args: str) -> set[str]:
+    """The modules a fresh interpreter has loaded once robox-cli ran `args`."""
+    probe = ("import sys\nfrom robox.cli import cli\n"
+             "try:\n    cli.main(list(sys.argv[1:]), standalone_mode=False)\n"
+             "except BaseException:\n    pass\n"
+             "print('\\n'.join(sorted(sys.modules)))\n")
+    out = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True,
+                         text=True, check=True, timeout=60)
+    return set(out.stdout.split())
+
+
+@pytest.mark.parametrize("args", [("--help",), ("status",), ("sdcard", "--help")])
+def test_a_command_loads_neither_the_model_nor_the_translator(args):
+    loaded = loaded_after(*args)
+    assert not [name for name in HEAVY if name in loaded]
+    assert ("robox.cli.printer" in loaded) == (args == ("status",))
