@@ -23,6 +23,7 @@ NATIVE_MODULES = [
     "robox/firmware/error_flags.py",
     "robox/firmware/user_interface.py",
     "robox/hardware/machine.py",
+    "robox/hardware/deposition.py",
     "robox/hardware/eeprom_bus.py",
     "robox/hardware/clock.py",
     "robox/hardware/usb.py",

@@ -25,6 +25,7 @@ MODULES = (
     "robox.firmware.error_flags",
     "robox.firmware.user_interface",
     "robox.hardware.machine",
+    "robox.hardware.deposition",
     "robox.hardware.eeprom_bus",
     "robox.hardware.clock",
     "robox.hardware.usb",

@@ -47,8 +47,12 @@ from __future__ import annotations
 import math
 from array import array
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from robox.formats.heads import E_FEED, HeadValves
+
+if TYPE_CHECKING:
+    from robox.hardware.machine import Machine
 
 B_STEPS: float = 2500.0
 XY_STEPS: float = 133.7
@@ -125,7 +129,7 @@ class Deposition:
         self.slipped_steps = 0
 
     # ------------------------------------------------------------ machine calls
-    def attach(self, machine) -> None:
+    def attach(self, machine: Machine) -> None:
         """Start watching `machine` (its valve and head where they are now)."""
         self.machine = machine
         self.b = machine.b

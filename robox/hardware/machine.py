@@ -39,8 +39,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Final
+from typing import Final
 
+from robox.hardware.deposition import Deposition
 from robox.packed import vec
 
 AXES: Final = "XYZEDB"
@@ -177,7 +178,7 @@ class Machine:
     hardware_revision: int = 2
     motors_on: bool = False
     # where plastic lands (robox.hardware.deposition), watched only where attached
-    deposition: Any = None
+    deposition: Deposition | None = None
 
     # ------------------------------------------------------------ motors
     def step(self, axis: int, n: int) -> None:
