@@ -778,7 +778,7 @@ class Translator:
         elif raw.startswith((b";LAYER_CHANGE", b";LAYER:")):
             self.layer += 1
 
-    def _nozzle_for_width(self, out: list[bytes]) -> None:
+    def _nozzle_for_feature(self, out: list[bytes]) -> None:
         if self.layer == 1 and self.feature_nozzle >= 0:
             wanted = 0  # the first layer with the fine nozzle
         elif self.feature_nozzle >= 0:
@@ -836,7 +836,7 @@ class Translator:
             volume -= owed
         if volume > 1e-9:
             if self.by_width:
-                self._nozzle_for_width(out)
+                self._nozzle_for_feature(out)
             if self.kind != "plain" and not self.valve_open:
                 self._open(out)
             self._book(extruder, volume)

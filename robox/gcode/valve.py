@@ -535,19 +535,15 @@ class ValveStage:
     def _copy_close(self, at: int, t: float, direction: int, ej: float) -> None:
         """Step onto the inner wall at move `at` (fraction t) and run along it in
         `direction` over `ej` of its plastic, the B falling, that plastic's E removed."""
+        # the first move run along: the point splits its move (backwards: the part
+        # before it, forwards: the part after); at a move's end, backwards is that move
+        # and forwards the next; at its start, forwards is that move, backwards the last
         if 0.0 < t < 1.0:
             self._split(at, t)
-            at += 1  # the part after the point
-            if direction < 0:
-                at -= 1  # the part before it
-        elif t >= 1.0 and direction < 0:
-            pass  # from the move's end, backwards: the move itself
-        elif t <= 0.0 and direction > 0:
-            pass
-        elif t >= 1.0:
-            at += 1
-        else:
-            at -= 1
+            if direction > 0:
+                at += 1
+        elif (t >= 1.0) == (direction > 0):
+            at += direction
         feed = self.feed_in_force
         here = (self.x, self.y)
         start = (self.buf[at].x, self.buf[at].y) if direction < 0 else \

@@ -60,7 +60,6 @@ Z_STEPS: float = 6400.0
 E_STEPS: float = 747.0
 E_AXIS = 3
 D_AXIS = 4
-B_AXIS = 5
 #: mm3 a shut head takes under pressure before its drive slips.
 PRESSURE_LIMIT_MM3 = 1.0
 #: A stretch shorter than this (mm) that leaves BLOB_MM3 or more is plastic left with
@@ -239,8 +238,7 @@ class Deposition:
         if start != here and (abs(here[0] - start[0]) > reach
                               or abs(here[1] - start[1]) > reach):
             self._standing()  # what was left where the head stood
-            if start[0] != math.inf:
-                self._row(start, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)
+            self._row(start, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)
             if not self.valves.has_valve:  # without a valve, a travel ends the paths
                 for k in range(len(self.path_of)):
                     self._close_path(k)
@@ -307,7 +305,7 @@ class Deposition:
         self._standing()
         here = (m.x / XY_STEPS, m.y / XY_STEPS)
         last = self._anchor
-        if self.valves.has_valve and last[0] != math.inf and last != here:
+        if self.valves.has_valve and last != here:
             self._row(last, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)  # travel
         self._anchor = here  # a new path's plastic is laid from where it opened
         self.path_of[n] = len(self.paths)
