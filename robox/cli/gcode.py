@@ -156,16 +156,15 @@ def simulate_cmd(ctx: click.Context, source: str, head: str, filament_diameter: 
             bar.length = max(total, 1)
             bar.update(line - bar.pos)
 
-        report = simulate(source, setup, progress)
-    drawn = None
-    if plot_path is not None:
-        drawn = draw(report, plot_path, layer)
+        drawn: list[int] = []
+        report = simulate(source, setup, progress, None if plot_path is None else
+                          lambda report: drawn.append(draw(report, plot_path, layer)))
     if as_json:
         emit_json(report.as_dict())
     else:
         _show(report)
-        if drawn is not None:
-            click.echo(f"plot: layer {drawn} drawn in {plot_path}")
+        if drawn:
+            click.echo(f"plot: layer {drawn[0]} drawn in {plot_path}")
     if report.errors or not report.completed:
         ctx.exit(EXIT_PROBLEM)
 

@@ -39,13 +39,15 @@ for the path) as rows of their own. A path runs from an opening of a shut valve 
 close (on a head without a valve: from the first plastic to a travel). A stretch that
 carries on straight from the last row (its joint within `STRAIGHT_MM` of the line) and
 delivers alike (the deposited share of what was driven within 5%) is merged into it, so
-the record grows with the job's paths and turns, not with its microsteps.
+the record grows with the job's paths and turns, not with its microsteps; given a
+`spill` file, all but the newest rows go there, and memory stays flat in the job's size.
 """
 
 from __future__ import annotations
 
 import math
 from array import array
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -79,6 +81,8 @@ SAME_Z_MM = 0.005
 STRAIGHT_MM = 0.01
 #: The steps a valve move and the plastic fed in the same run of steps are taken in.
 INTERLEAVE = 16
+#: Rows kept in memory before the older ones go to the spill file, where there is one.
+SPILL_ROWS = 1 << 16
 #: Rows: x0, y0, x1, y1, z, deposited, driven, nozzle, path (-1: a travel).
 COLUMNS = ("x0", "y0", "x1", "y1", "z", "deposited", "driven", "nozzle", "path")
 
@@ -104,6 +108,7 @@ class Deposition:
     rows: dict[str, array] = field(default_factory=lambda: {c: array("d") for c in COLUMNS})
     paths: list[Path] = field(default_factory=list)
     recording: bool = True  # False: the valve's and the pressure's physics, no record
+    spill: str | None = None  # a file the older rows go to (None: all kept in memory)
 
     def __post_init__(self) -> None:
         nozzles = len(self.valves.feeds)
@@ -123,6 +128,7 @@ class Deposition:
         self._nozzle = self._path = -1
         self.shut_fed_mm3 = 0.0  # fed into a head with its feed's nozzles shut
         self.feed_waiting = False  # plastic fed in the run of steps under way
+        self.spilled = 0  # rows in the spill file
         self._feed_axis = E_AXIS
         self._feed_mm3 = 0.0
         self.slipped_steps = 0
@@ -341,6 +347,37 @@ class Deposition:
         for name, value in zip(COLUMNS, (x0, y0, x1, y1, z, dep, drv, float(nozzle),
                                          float(path)), strict=True):
             r[name].append(value)
+        if self.spill is not None and len(r["x0"]) > SPILL_ROWS:
+            self._spill()
+
+    def _spill(self) -> None:
+        """All rows but the last (the one a stretch may still merge into) to the spill
+        file, a chunk of columns: memory stays flat in the job's size."""
+        r = self.rows
+        n = len(r["x0"]) - 1
+        assert self.spill is not None
+        with open(self.spill, "ab") as f:
+            f.write(n.to_bytes(8, "little"))
+            for name in COLUMNS:
+                r[name][:n].tofile(f)
+                del r[name][:n]
+        self.spilled += n
+
+    def iter_rows(self) -> Iterator[tuple[float, ...]]:
+        """Every row, oldest first: (x0, y0, x1, y1, z, deposited, driven, nozzle,
+        path)."""
+        if self.spill is not None and self.spilled:
+            with open(self.spill, "rb") as f:
+                while header := f.read(8):
+                    n = int.from_bytes(header, "little")
+                    columns = []
+                    for _ in COLUMNS:
+                        column = array("d")
+                        column.fromfile(f, n)
+                        columns.append(column)
+                    yield from zip(*columns, strict=True)
+        r = self.rows
+        yield from zip(*(r[name] for name in COLUMNS), strict=True)
 
 
 def _straight(px: float, py: float, jx: float, jy: float, qx: float, qy: float) -> bool:

@@ -18,9 +18,12 @@ the plate's front edge is meant to be a blob.
 
 from __future__ import annotations
 
+import bisect
+import heapq
 import math
 import os
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 from robox.hardware.deposition import BLOB_MM3, STANDING_MM, Deposition
@@ -49,30 +52,35 @@ class Place:
 
 
 class Quality:
-    """The deposition record in the job's frame, and the figures drawn from it."""
+    """The deposition record in the job's frame, and the figures drawn from it, read as
+    a stream (the record may be longer than memory holds: see Deposition.spill)."""
 
     def __init__(self, dep: Deposition, offsets: list[tuple[float, float, float]],
                  bed: tuple[float, float]):
-        r = dep.rows
-        self.rows = []  # (x0, y0, x1, y1, z, deposited, driven, nozzle, path)
-        for i in range(len(r["x0"])):
-            n = int(r["nozzle"][i])
-            ox, oy, oz = offsets[n] if n >= 0 else offsets[0]
-            self.rows.append((r["x0"][i] - ox, r["y0"][i] - oy, r["x1"][i] - ox,
-                              r["y1"][i] - oy, r["z"][i] - oz, r["deposited"][i],
-                              r["driven"][i], n, int(r["path"][i])))
+        self.dep = dep
         self.bed = bed
         self.paths = [p for p in dep.paths if p.judged]
-        unjudged = {p.number for p in dep.paths if not p.judged}
-        self.rows = [row for row in self.rows if row[8] not in unjudged]
+        self.unjudged = {p.number for p in dep.paths if not p.judged}
         self.offsets = offsets
         self.layers = self._layers()
+
+    def rows(self) -> Iterator[tuple[float, float, float, float, float, float, float, int,
+                                     int]]:
+        """(x0, y0, x1, y1, z, deposited, driven, nozzle, path) in the job's frame, the
+        start sequence's paths left out."""
+        offsets, unjudged = self.offsets, self.unjudged
+        for x0, y0, x1, y1, z, dep, drv, nozzle, path in self.dep.iter_rows():
+            n, p = int(nozzle), int(path)
+            if p in unjudged:
+                continue
+            ox, oy, oz = offsets[n] if n >= 0 else offsets[0]
+            yield x0 - ox, y0 - oy, x1 - ox, y1 - oy, z - oz, dep, drv, n, p
 
     def on_plate(self, x: float, y: float) -> bool:
         return -EDGE_MM <= x <= self.bed[0] + EDGE_MM and -EDGE_MM <= y <= self.bed[1] + EDGE_MM
 
     def _layers(self) -> list[float]:
-        heights = sorted({round(row[4], 2) for row in self.rows
+        heights = sorted({round(row[4], 2) for row in self.rows()
                           if row[5] > 0.0 and self.on_plate(row[2], row[3])})
         layers: list[float] = []
         for z in heights:
@@ -82,18 +90,28 @@ class Quality:
 
     def layer_of(self, z: float) -> int:
         """The layer (from 1) a height belongs to; 0 below the first."""
-        best = 0
-        for i, height in enumerate(self.layers):
-            if z >= height - LAYER_MERGE_MM:
-                best = i + 1
-        return best
+        return bisect.bisect_right(self.layers, z + LAYER_MERGE_MM)
 
     def figures(self) -> tuple[dict, list[Place]]:
         blob = starved_mm = deposited = driven = 0.0
-        places: list[Place] = []
+        blobs = 0
+        worst: list[tuple[float, int, Place]] = []  # a heap of the worst places
+        count = 0
+
+        def keep(place: Place) -> None:
+            nonlocal count
+            count += 1
+            if place.mm3 <= 1e-4:
+                return
+            item = (place.mm3, -count, place)  # (of equals, the earliest stay)
+            if len(worst) < WORST:
+                heapq.heappush(worst, item)
+            elif item[0] > worst[0][0]:
+                heapq.heapreplace(worst, item)
+
         run: Place | None = None  # the starved stretch being followed
-        last_path = None
-        for x0, y0, x1, y1, z, dep, drv, _n, path in self.rows:
+        last_path = -2
+        for x0, y0, x1, y1, z, dep, drv, _n, path in self.rows():
             if path < 0 or not self.on_plate(x1, y1):
                 continue
             deposited += dep
@@ -102,7 +120,8 @@ class Quality:
             if length < STANDING_MM:
                 if dep >= BLOB_MM3:
                     blob += dep
-                    places.append(Place("blob", self.layer_of(z), x1, y1, z, dep))
+                    blobs += 1
+                    keep(Place("blob", self.layer_of(z), x1, y1, z, dep))
                 continue
             if dep < STARVED * drv:
                 starved_mm += length
@@ -111,26 +130,29 @@ class Quality:
                     run.length_mm += length
                     run.x, run.y = x1, y1
                 else:
+                    if run is not None:
+                        keep(run)
                     run = Place("starved", self.layer_of(z), x1, y1, z, drv - dep, length)
-                    places.append(run)
                 last_path = path
-            else:
+            elif run is not None:
+                keep(run)
                 run = None
+        if run is not None:
+            keep(run)
         ends = sum(1 for p in self.paths if p.closed and self.on_plate(
             p.end[0] - self.offsets[p.nozzle][0], p.end[1] - self.offsets[p.nozzle][1]))
         opens = sum(1 for p in self.paths if self.on_plate(
             p.start[0] - self.offsets[p.nozzle][0], p.start[1] - self.offsets[p.nozzle][1]))
-        places.sort(key=lambda p: -p.mm3)
-        worst = [p for p in places if p.mm3 > 1e-4][:WORST]
+        places = [place for _, _, place in sorted(worst, key=lambda item: (-item[0], -item[1]))]
         figures = {
             "path_ends": ends, "opens": opens, "layers": len(self.layers),
             "deposited_mm3": round(deposited, 2), "driven_mm3": round(driven, 2),
-            "blob_mm3": round(blob, 3), "blobs": sum(1 for p in places if p.kind == "blob"),
+            "blob_mm3": round(blob, 3), "blobs": blobs,
             "starved_mm": round(starved_mm, 2),
             "blob_mm3_per_path_end": round(blob / ends, 4) if ends else 0.0,
             "starved_mm_per_open": round(starved_mm / opens, 4) if opens else 0.0,
         }
-        return figures, worst
+        return figures, places
 
 
 _MOVE = re.compile(r"^\s*G[01](?!\d)", re.I)
@@ -182,7 +204,7 @@ def plot(quality: Quality, target: str | os.PathLike, layer: int | None,
     if not 1 <= layer <= len(quality.layers):
         raise ValueError(f"layer {layer}: the print has layers 1 to {len(quality.layers)}")
     lines, ratios, travels, blobs = [], [], [], []
-    for x0, y0, x1, y1, z, dep, drv, _n, path in quality.rows:
+    for x0, y0, x1, y1, z, dep, drv, _n, path in quality.rows():
         if quality.layer_of(z) != layer:
             continue
         if path < 0 or (dep == 0.0 and drv == 0.0):

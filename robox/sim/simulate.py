@@ -192,7 +192,7 @@ def _make_printer(state: Path, setup: Setup, kind: str, job: JobFile) -> Virtual
         if n in _feeds_used(job, kind):
             machine.insert_filament(axis, setup.remaining_m[n] * 1000.0, tip_mm=NOZZLE_MM)
     Deposition(head_valves(setup.head, setup.ejection), (setup.filament_diameter,) * 2,
-               images.CALIBRATED_B_OFFSETS).attach(machine)
+               images.CALIBRATED_B_OFFSETS, spill=str(state / "deposition.rows")).attach(machine)
     virtual.settle()
     return virtual
 
@@ -238,9 +238,11 @@ def _prepared(source: str | os.PathLike, setup: Setup, kind: str
 
 
 def simulate(source: str | os.PathLike, setup: Setup,
-             progress: Callable[[int, int], None] | None = None) -> Report:
+             progress: Callable[[int, int], None] | None = None,
+             judged: Callable[[Report], None] | None = None) -> Report:
     """Print `source` on a fresh virtual printer; what it did. `progress(lines, total)`
-    hears of the job's line number as it goes."""
+    hears of the job's line number as it goes; `judged(report)` is called while the
+    deposition record (`report.quality`) can still be read (it is gone afterwards)."""
     if any(m < 0 for m in setup.remaining_m):
         raise UsageError("the filament remaining on a reel cannot be negative")
     kind = head_kind(setup.head)
@@ -256,6 +258,9 @@ def simulate(source: str | os.PathLike, setup: Setup,
             dep.judging = False
         _print(virtual, watch, report, progress, setup, kind)
         _judge(virtual, report, job)
+        if judged is not None:
+            judged(report)
+        report.quality = None
     return report
 
 

@@ -140,3 +140,27 @@ def test_watching_changes_nothing_while_the_head_is_not_full_and_plastic_is_kept
     fed = watched.extruded[E] * MM3_PER_STEP
     laid = sum(dep.rows["deposited"])
     assert laid == pytest.approx(fed + pushed - opened + dep.void[0], abs=1e-9)
+
+
+def test_rows_spilled_to_a_file_read_back_as_kept_in_memory(tmp_path, monkeypatch):
+    """With a spill file the record keeps only its newest row in memory past a bound,
+    and reads back every row, in order, as one kept wholly in memory does."""
+    import robox.hardware.deposition as deposition
+
+    def draw(m: Machine) -> None:
+        m.step(B, B_UNIT)
+        for i in range(600):  # a zigzag: a row per leg
+            m.step(X if (i // 20) % 2 else Y, 1 if (i // 40) % 2 else -1)
+            m.step(E, 2)
+        m.step(B, -B_UNIT)
+
+    kept_m, kept = machine()
+    draw(kept_m)
+    kept.finish()
+    monkeypatch.setattr(deposition, "SPILL_ROWS", 3)
+    spilled_m, spilled = machine()
+    spilled.spill = str(tmp_path / "rows")
+    draw(spilled_m)
+    spilled.finish()
+    assert spilled.spilled > 10 and len(spilled.rows["x0"]) <= 4
+    assert list(spilled.iter_rows()) == list(kept.iter_rows())
