@@ -148,7 +148,7 @@ class Deposition:
         steps (`feed_waiting`): a valve step in the same run moves with it."""
         self.flush_feed()
         mm3 = steps * self.mm3_per_step[axis]
-        if not self._open_for(axis):
+        if self._open_nozzle(axis) < 0:
             room = PRESSURE_LIMIT_MM3 - self.pressure[axis]
             if mm3 > room:
                 taken = max(0, int(room / self.mm3_per_step[axis]))
@@ -187,15 +187,18 @@ class Deposition:
         self.b = b
         self._set_openings(b, record=True)
 
-    def _open_for(self, axis: int) -> bool:
-        return any(feed == axis and self.opening[n] > 0.0
-                   for n, feed in enumerate(self.feed_axis))
-
-    def _feed(self, axis: int, mm3: float) -> None:
+    def _open_nozzle(self, axis: int) -> int:
+        """The nozzle of feed `axis` whose needle is off its seat (-1: all shut)."""
         for n, feed in enumerate(self.feed_axis):
             if feed == axis and self.opening[n] > 0.0:
-                self._out(n, mm3, mm3)
-                return
+                return n
+        return -1
+
+    def _feed(self, axis: int, mm3: float) -> None:
+        n = self._open_nozzle(axis)
+        if n >= 0:
+            self._out(n, mm3, mm3)
+            return
         self.pressure[axis] += mm3
         self.shut_fed_mm3 += mm3
 
