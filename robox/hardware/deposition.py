@@ -112,7 +112,10 @@ class Deposition:
 
     def __post_init__(self) -> None:
         nozzles = len(self.valves.feeds)
-        self.opening = [0.0] * nozzles if self.valves.has_valve else [1.0] * nozzles
+        # a plain attribute: looked at on every valve step (a property of the frozen
+        # table would be a call into interpreted code from the compiled machine)
+        self.has_valve = self.valves.has_valve
+        self.opening = [0.0] * nozzles if self.has_valve else [1.0] * nozzles
         self.void = [0.0] * nozzles
         self.pressure = {E_AXIS: 0.0, D_AXIS: 0.0}
         self.feed_axis = [E_AXIS if f == E_FEED else D_AXIS for f in self.valves.feeds]
@@ -204,7 +207,7 @@ class Deposition:
 
     # ------------------------------------------------------------ the plastic
     def _set_openings(self, b: int, record: bool) -> None:
-        if not self.valves.has_valve:
+        if not self.has_valve:
             return
         units = b / B_STEPS
         for n in range(len(self.opening)):
@@ -243,12 +246,12 @@ class Deposition:
         m = self.machine
         here = (m.x / XY_STEPS, m.y / XY_STEPS)
         start = self._anchor
-        reach = ANCHOR_MM if self.valves.has_valve else ANCHOR_PLAIN_MM
+        reach = ANCHOR_MM if self.has_valve else ANCHOR_PLAIN_MM
         if start != here and (abs(here[0] - start[0]) > reach
                               or abs(here[1] - start[1]) > reach):
             self._standing()  # what was left where the head stood
             self._row(start, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)
-            if not self.valves.has_valve:  # without a valve, a travel ends the paths
+            if not self.has_valve:  # without a valve, a travel ends the paths
                 for k in range(len(self.path_of)):
                     self._close_path(k)
             start = here
@@ -314,7 +317,7 @@ class Deposition:
         self._standing()
         here = (m.x / XY_STEPS, m.y / XY_STEPS)
         last = self._anchor
-        if self.valves.has_valve and last != here:
+        if self.has_valve and last != here:
             self._row(last, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)  # travel
         self._anchor = here  # a new path's plastic is laid from where it opened
         self.path_of[n] = len(self.paths)
