@@ -356,6 +356,31 @@ class Firmware:
             self.run_pass(step, passes)  # (not *plan(): compiled, a native call)
         return condition is not None and condition()
 
+    def working(self) -> bool:
+        """Whether anything would change on its own: a pass has work, a job is under
+        way, motion is queued or a heater is on (else the printer waits for a host)."""
+        job = self.job
+        return self.busy() or job.running or job.current is not None or \
+            not self.motion.idle() or self.heaters.any_on()
+
+    def run_for_host(self, timeout: float, max_passes: int = 2000) -> int:
+        """Passes for a host at the end of a live link: at least one, then on while the
+        printer is working, until `timeout` simulated seconds pass, a reply waits for the
+        host, `max_passes` have run (so the link is looked at often enough), or a pass
+        ran while an EEPROM was being written (so that its chip can be saved as each step
+        lands); none when `timeout` is not positive. The number of passes run."""
+        end = self.clock.now + timeout
+        usb = self.hw.usb
+        passes = 0
+        while passes < max_passes and timeout > 0.0:
+            writing = not self.eeproms.all_quiet()
+            step, n = self.plan(max(PASS_S, end - self.clock.now))
+            self.run_pass(step, n)
+            passes += 1
+            if writing or usb.in_flight or self.clock.now >= end or not self.working():
+                break
+        return passes
+
     # ------------------------------------------------------------- debug
     def debug_text(self) -> str:
         job = self.job

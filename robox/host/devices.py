@@ -18,7 +18,7 @@ import errno
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +36,6 @@ from robox.host.transport import (
 
 ENVIRONMENT = "ROBOX_DEVICE"
 SIM_STEP_S = 5.0  # simulated seconds a sim-once printer runs while the host waits
-SERVED_POLL_S = 0.02  # a served virtual printer's clock outruns the wall's: poll it often
 
 
 class NoPrinter(RoboxError):
@@ -186,9 +185,20 @@ def _served(directory: Path, timeout_ms: int, announce=None, take_over: bool = F
 
     record = served.ensure(directory, announce)
     printer = _connect(SerialTransport(record["pty"]), timeout_ms,
-                       lambda seconds: time.sleep(min(seconds, SERVED_POLL_S)), take_over)
+                       served_idle(record.get("speed")), take_over)
     printer.served = record
     return printer
+
+
+def served_idle(speed: float | None) -> Callable[[float], None]:
+    """How a host lets a served printer's time pass. Paced (`speed` times the wall
+    clock), the wait is the wall time that takes. Running fast, the printer's clock
+    stops a little short of the moment it would count the host as gone, until the host
+    asks again (`robox.sim.serve`): there the host's poll is what lets the time pass,
+    so it asks again at once."""
+    if speed is None:
+        return lambda seconds: time.sleep(0)
+    return lambda seconds: time.sleep(seconds / speed)
 
 
 def _started(record: dict) -> None:

@@ -279,6 +279,12 @@ class VirtualPrinter:
         self.firmware.run_pass(step, passes)
         self.save_chips()
 
+    def run_for_host(self, timeout: float) -> int:
+        """Firmware.run_for_host, then the chips' files brought up to date."""
+        passes = self.firmware.run_for_host(timeout)
+        self.save_chips()
+        return passes
+
     def run_until(self, condition, timeout: float = 3600.0) -> bool:
         """Firmware.run_until, then the chips' files brought up to date (condition None:
         run the whole timeout)."""

@@ -52,6 +52,7 @@ class PtyServer:
         self._pending_out = bytearray()
         self._last_input = 0.0
         self._reply_owed = False  # the host wrote and has had nothing back yet
+        self.start_pacing()
 
     def stop(self, *_args) -> None:
         self.stopping = True
@@ -83,11 +84,6 @@ class PtyServer:
                 return
             del self._pending_out[:written]
 
-    def _work_pending(self) -> bool:
-        fw = self.printer.firmware
-        return fw.busy() or fw.job.running or fw.job.current is not None or \
-            not fw.motion.idle() or fw.heaters.any_on()
-
     def _host_turn(self) -> float | None:
         """Fast mode: the printer time at which a connected host must be heard from
         again (None when no host is connected, or it has gone quiet)."""
@@ -101,35 +97,46 @@ class PtyServer:
     def serve_once(self, timeout: float = 0.05) -> None:
         """Wait for the host (at most `timeout` s), then run the firmware."""
         fw = self.printer.firmware
-        turn = self._host_turn() if self.speed is None else None
-        held = turn is not None and fw.clock.now >= turn
-        wait = 0.0 if (self.speed is None and self._work_pending() and not held) else timeout
-        readable, _, _ = select.select([self.master], [], [], wait)
+        readable, _, _ = select.select([self.master], [], [], self._wait(timeout))
         if readable:
             self._pump_input()
         if self.speed is None:
-            passes = 0
             turn = self._host_turn()
             until = fw.clock.now + FAST_SLICE_S if turn is None else min(
                 fw.clock.now + FAST_SLICE_S, turn)
-            while passes < 2000 and (self._work_pending() or passes == 0) and \
-                    fw.clock.now < until:
-                self.printer.run_pass(*fw.plan(max(PASS_S, until - fw.clock.now)))
-                passes += 1
-                if self.printer.usb.reply_waiting:
-                    break
+            self.printer.run_for_host(until - fw.clock.now)
         else:
-            target = self._sim_start + (time.monotonic() - self._wall_start) * self.speed
-            while fw.clock.now < target:
-                remaining = max(0.0, target - fw.clock.now)
-                if remaining >= PASS_S:
-                    self.printer.run_pass(*fw.plan(remaining))
-                else:
-                    self.printer.run_pass(remaining)
+            # whole passes only, the clock less than one behind the wall's: each pass
+            # lets one packet of the host's across the bus, whatever its length
+            target = self._paced_now()
+            while fw.clock.now + PASS_S <= target:
+                self.printer.run_pass(*fw.plan(target - fw.clock.now))
                 if self.printer.usb.reply_waiting:
                     self._pump_output()
         self._pump_output()
         self._tell_console()
+
+    def start_pacing(self) -> None:
+        """Paced: the printer's time and the wall's run on together from now."""
+        self._sim_start = self.printer.firmware.clock.now
+        self._wall_start = time.monotonic()
+
+    def _paced_now(self) -> float:
+        """Paced: the printer time that the wall clock says it is."""
+        return self._sim_start + (time.monotonic() - self._wall_start) * self.speed
+
+    def _wait(self, timeout: float) -> float:
+        """How long to wait for the host before running the firmware again: not at all
+        while it works with its clock free (fast), until its next pass is due (paced,
+        working: a transfer crossing the bus takes a pass a packet), else `timeout`."""
+        fw = self.printer.firmware
+        if not fw.working():
+            return timeout
+        if self.speed is None:
+            turn = self._host_turn()
+            return timeout if turn is not None and fw.clock.now >= turn else 0.0
+        due = (fw.clock.now + PASS_S - self._paced_now()) / self.speed
+        return min(timeout, max(0.0, due))
 
     def _tell_console(self) -> None:
         """Say what a person at the printer should know (a deaf receiver, say)."""
@@ -143,8 +150,7 @@ class PtyServer:
         self._events_seen = len(events)
 
     def serve(self) -> None:
-        self._sim_start = self.printer.firmware.clock.now
-        self._wall_start = time.monotonic()
+        self.start_pacing()
         while not self.stopping:
             self.serve_once()
 

@@ -2,6 +2,7 @@
 
 import json
 import os
+import select
 import time
 
 import pytest
@@ -11,9 +12,10 @@ import usb.util
 from click.testing import CliRunner
 
 from robox.cli import cli
+from robox.formats.protocol import reply_length
 from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
-from tests.firmware.wire import Wire, circle_job, ident
+from tests.firmware.wire import Wire, circle_job, hexn, ident
 from tests.sim import serving
 
 
@@ -235,6 +237,7 @@ def test_sim_serve_reports_a_fault_in_the_model_on_its_console(tmp_path, monkeyp
         raise ValueError("cannot convert float NaN to integer")
 
     monkeypatch.setattr(serve_module.VirtualPrinter, "run_pass", broken)
+    monkeypatch.setattr(serve_module.VirtualPrinter, "run_for_host", broken)
     said: list[str] = []
     with pytest.raises(serve_module.ModelFault, match="ValueError"):
         serve_module.serve_forever(tmp_path / "state", None, lambda path: None, said.append)
@@ -261,3 +264,91 @@ def test_a_new_start_removes_the_temporary_file_of_a_killed_one(tmp_path):
     assert not stale.exists() and not nested.exists()
     assert other.read_text() == "mine" and kept.read_text() == "mine"
     assert (state / "sdcard.img").stat().st_size == 64 * 1024 * 1024
+
+
+def test_a_paced_printer_lets_one_packet_across_a_pass_however_often_it_runs(monkeypatch):
+    """Paced to the wall clock, the served printer runs whole passes only. Woken every
+    quarter of a pass, as it is while a transfer crosses, it still takes a pass for each
+    64-byte packet of a 521-byte chunk, and answers it as a printer in this process
+    does (a pass more or less: where in a pass the chunk arrived)."""
+    from robox.firmware.main import PASS_S
+    from robox.sim import serve
+
+    chunk = b"\x91" + hexn(0, 8) + bytes(range(256)) * 2
+    packets = -(-len(chunk) // 64)
+    alone = VirtualPrinter()
+    alone.settle()
+    assert alone.transact(b"\x90" + ident("paced"))[0] == 0xE3
+    began = alone.firmware.clock.now
+    assert alone.transact(chunk)[0] == 0xE3
+    in_process = alone.firmware.clock.now - began
+    assert in_process >= packets * PASS_S
+
+    wall = [1000.0]
+    monkeypatch.setattr(serve.time, "monotonic", lambda: wall[0])
+    printer = VirtualPrinter()
+    printer.settle()
+    server = serve.PtyServer(printer, speed=1.0)
+    clock, usb = printer.firmware.clock, printer.usb
+    paced_from = clock.now
+
+    def exchange(frame: bytes) -> tuple[bytes, float]:
+        os.write(server.slave, frame)
+        taken = None
+        out = b""
+        for _ in range(20 * packets * 4):
+            before, arrived = clock.now, usb.bytes_in
+            wall[0] += PASS_S / 4
+            server.serve_once(timeout=0)
+            if taken is None and usb.bytes_in > arrived:
+                taken = before
+            if select.select([server.slave], [], [], 0)[0]:
+                out += os.read(server.slave, 4096)
+                if reply_length(out) is not None and len(out) >= reply_length(out):
+                    return out, clock.now - taken
+            assert clock.now - paced_from <= wall[0] - 1000.0  # never ahead of the wall
+        raise AssertionError(f"no reply to {frame[:1]!r}")
+
+    try:
+        assert exchange(b"\x90" + ident("paced"))[0][0] == 0xE3
+        reply, took = exchange(chunk)
+        assert reply[0] == 0xE3 and set(reply[1:]) == {ord("0")}
+        assert took >= packets * PASS_S
+        assert abs(took - in_process) <= PASS_S + 1e-9
+    finally:
+        server.close()
+        printer.close()
+        alone.close()
+
+
+def test_run_for_host_stops_for_a_reply_and_runs_on_while_the_printer_works():
+    printer = VirtualPrinter()
+    printer.settle()
+    fw, usb = printer.firmware, printer.usb
+    assert printer.run_for_host(0.0) == 0
+    assert printer.run_for_host(5.0) == 1 and not fw.working()  # nothing to do: a pass
+    began = fw.clock.now
+    usb.host_write(b"\xb3")
+    printer.run_for_host(5.0)
+    assert usb.reply_waiting and fw.clock.now - began < 0.01  # the reply, at once
+    assert usb.host_read(4096)[0] == 0xE3
+    Wire(printer).gcode(b"M104 S200\r")  # a heater on: the printer works without a host
+    began = fw.clock.now
+    printer.run_for_host(0.5)
+    assert fw.working() and not usb.reply_waiting
+    assert 0.5 <= fw.clock.now - began < 0.5 + 0.01
+    printer.close()
+
+
+def test_a_host_lets_a_served_printers_time_pass_by_its_pace(monkeypatch):
+    """Fast, the served clock waits for the host's next poll: the host asks at once.
+    Paced, the host sleeps the wall time that the printer's time takes."""
+    from robox.host import devices
+
+    slept = []
+    monkeypatch.setattr(devices.time, "sleep", slept.append)
+    devices.served_idle(None)(0.5)
+    devices.served_idle(1.0)(0.5)
+    devices.served_idle(10.0)(0.5)
+    devices.served_idle(0.5)(0.5)
+    assert slept == [0, 0.5, 0.05, 1.0]
