@@ -363,21 +363,27 @@ class Firmware:
         return self.busy() or job.running or job.current is not None or \
             not self.motion.idle() or self.heaters.any_on()
 
-    def run_for_host(self, timeout: float, max_passes: int = 2000) -> int:
+    def run_for_host(self, timeout: float, chip_written: Callable[[], None] | None = None,
+                     max_passes: int = 2000) -> int:
         """Passes for a host at the end of a live link: at least one, then on while the
         printer is working, until `timeout` simulated seconds pass, a reply waits for the
-        host, `max_passes` have run (so the link is looked at often enough), or a pass
-        ran while an EEPROM was being written (so that its chip can be saved as each step
-        lands); none when `timeout` is not positive. The number of passes run."""
+        host, or `max_passes` have run (so the link is looked at often enough); none when
+        `timeout` is not positive. `chip_written` is called after each pass in which an
+        EEPROM chip took a write (so that its dump can follow it). The number of passes
+        run."""
         end = self.clock.now + timeout
         usb = self.hw.usb
+        bus = self.hw.eeprom_bus
+        written = bus.writes()
         passes = 0
         while passes < max_passes and timeout > 0.0:
-            writing = not self.eeproms.all_quiet()
             step, n = self.plan(max(PASS_S, end - self.clock.now))
             self.run_pass(step, n)
             passes += 1
-            if writing or usb.in_flight or self.clock.now >= end or not self.working():
+            if chip_written is not None and bus.writes() != written:
+                written = bus.writes()
+                chip_written()
+            if usb.in_flight or self.clock.now >= end or not self.working():
                 break
         return passes
 

@@ -23,5 +23,14 @@ class EepromBus:
             return None
         return self.sockets[index]
 
+    def writes(self) -> int:
+        """Byte writes the chips in the sockets have taken (a count that moves on with
+        every write that lands)."""
+        total = 0
+        for chip in self.sockets:
+            if chip is not None:
+                total += chip.writes
+        return total
+
     def insert(self, index: int, chip: EepromChip | None) -> None:
         self.sockets[index] = chip

@@ -280,10 +280,9 @@ class VirtualPrinter:
         self.save_chips()
 
     def run_for_host(self, timeout: float) -> int:
-        """Firmware.run_for_host, then the chips' files brought up to date."""
-        passes = self.firmware.run_for_host(timeout)
-        self.save_chips()
-        return passes
+        """Firmware.run_for_host, the chips' files brought up to date after each pass
+        that wrote a chip (as run_pass does)."""
+        return self.firmware.run_for_host(timeout, self.save_chips)
 
     def run_until(self, condition, timeout: float = 3600.0) -> bool:
         """Firmware.run_until, then the chips' files brought up to date (condition None:
