@@ -19,7 +19,13 @@ same file (`for line in f: line.split()`) timed in the same run:
    file and on a larger, finer tower (12 MB, 427k lines), and the ratio of
    their peak memories;
 3. `robox-cli simulate FILE --json` on the same files (translated, printed on a fresh
-   virtual printer with its deposition record): lines/s and the ratio.
+   virtual printer with its deposition record): lines/s and the ratio;
+4. the served printer (`robox-cli sim serve`, what `--device sim` and OctoPrint use):
+   the whole path of 2. through its pseudo-terminal, beside the in-process rate, with
+   the server's CPU seconds; and a 100 KB upload over the pseudo-terminal to a printer
+   paced at 1x and 10x the wall clock, beside its transfer limit (one 64-byte packet
+   of the host's frames crosses the bus in each 1 ms pass) and beside the simulated
+   time the same upload takes in process, where the host answers at once.
 
 The printer has filament in its feed, up to the nozzle, as every real print has (the
 model alone: in the machine; the whole path: `sim load` in its state directory;
@@ -30,8 +36,10 @@ own, or the child's) and simulated time over each.
 Asserts nothing.
 """
 
+import contextlib
 import json
 import math
+import os
 import resource
 import shutil
 import struct
@@ -183,9 +191,10 @@ def robox_cli(*args: str, ok: tuple[int, ...] = (0,)) -> tuple[bytes, float, flo
     return child.stdout, kb / 1024, cpu
 
 
-def whole_path(path: Path, loaded: bool) -> float:
+def whole_path(path: Path, loaded: bool) -> tuple[float, float]:
     """robox-cli send-job --wait on a fresh state directory (filament in its feed unless
-    `loaded` is False), in its own process; the peak resident memory in MB."""
+    `loaded` is False), in its own process; the peak resident memory in MB, and the
+    rate in lines/s."""
     from robox.sim.printer import NOZZLE_MM, create_state, write_filament
 
     with open(path, "rb") as f:
@@ -212,7 +221,103 @@ def whole_path(path: Path, loaded: bool) -> float:
     print(f"  simulated print time {simulated / 3600:.2f} h; simulated / wall = "
           f"{simulated / wall:,.0f}x, / CPU = {simulated / cpu:,.0f}x; "
           f"peak RSS {peak:.0f} MB; errors {summary['errors'] or 'none'}")
-    return peak
+    return peak, rate
+
+
+def server_cpu(pid: int) -> float:
+    """CPU seconds (user and system) a process has used so far."""
+    with open(f"/proc/{pid}/stat") as stat:
+        fields = stat.read().rpartition(") ")[2].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@contextlib.contextmanager
+def served_printer(state: Path, *options: str):
+    """A printer served in the background on `state` (`sim serve --detach`); its
+    server's PID. Switched off afterwards."""
+    from robox.sim.served import served_record
+
+    robox_cli("sim", "serve", "--state", str(state), "--detach", *options)
+    try:
+        yield served_record(state)["pid"]
+    finally:
+        robox_cli("sim", "stop", "--state", str(state))
+
+
+def served_whole_path(path: Path, loaded: bool, in_process_rate: float) -> None:
+    """`send-job --wait` to a printer served as fast as it can run."""
+    from robox.sim.printer import NOZZLE_MM, create_state, write_filament
+
+    with open(path, "rb") as f:
+        lines = sum(1 for _ in f)
+    with tempfile.TemporaryDirectory() as tmp:
+        state = Path(tmp) / "printer"
+        create_state(state)
+        if loaded:
+            write_filament(state, {"E": {"length_mm": 240_000.0, "tip_mm": NOZZLE_MM},
+                                   "D": None})
+        with served_printer(state) as pid:
+            server0 = server_cpu(pid)
+            start = time.perf_counter()
+            out, _, cpu = robox_cli("--device", f"sim:{state}", "send-job", str(path),
+                                    "--wait", "--json")
+            wall = time.perf_counter() - start
+            server = server_cpu(pid) - server0
+    summary = json.loads(out)
+    rate = lines / wall
+    print(f"  served (sim serve, its pty): {wall:.2f} s wall, {rate:,.0f} lines/s, "
+          f"{rate / in_process_rate:.0%} of the in-process rate; CPU: host {cpu:.2f} s, "
+          f"server {server:.2f} s; errors {summary['errors'] or 'none'}")
+
+
+def upload_text(size: int) -> bytes:
+    """`size` bytes of a Robox job's text (CR-ended moves)."""
+    lines, total, n = [], 0, 0
+    while total < size:
+        line = f"G1 X{10 + n % 190}.{n % 1000:03d} Y{20 + n % 130}.{n % 997:03d} F3000\r"
+        lines.append(line)
+        total += len(line)
+        n += 1
+    return "".join(lines).encode()[:size]
+
+
+def bus_packets(data: bytes) -> int:
+    """Packets of 64 bytes the frames of an upload of `data` take on the bus."""
+    chunks, tail = divmod(len(data), 512)
+    frames = [1 + 16] + [1 + 8 + 512] * chunks + [1 + 8 + 4 + tail]
+    return sum(-(-n // 64) for n in frames)
+
+
+def served_upload(speeds: tuple[float, ...], size: int = 100_000) -> None:
+    """An upload (stored, not printed) over a served printer's pty, paced."""
+    from robox.host.devices import open_printer
+    from robox.sim.printer import create_state
+
+    data = upload_text(size)
+    limit_s = bus_packets(data) * 0.001
+    with tempfile.TemporaryDirectory() as tmp:
+        state = Path(tmp) / "once"
+        create_state(state)
+        with open_printer(f"sim-once:{state}") as printer:
+            clock = printer.virtual.firmware.clock
+            began = clock.now
+            printer.send_file(data, "upload", run=False)
+            in_process_s = clock.now - began
+    print(f"upload of {size / 1000:.0f} KB (stored, not printed), {bus_packets(data)} "
+          f"packets: transfer limit {limit_s:.2f} s of printer time; in process "
+          f"{in_process_s:.2f} s of printer time")
+    for speed in speeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            state = Path(tmp) / "printer"
+            create_state(state)
+            with served_printer(state, "--speed", repr(speed)), \
+                    open_printer(f"sim:{state}") as printer:
+                start = time.perf_counter()
+                printer.send_file(data, "upload", run=False)
+                wall = time.perf_counter() - start
+        print(f"  served at {speed:g}x: {wall:.2f} s wall, {size / wall / 1000:.1f} KB/s; "
+              f"{limit_s / speed / wall:.0%} of the transfer limit, "
+              f"{in_process_s / speed / wall:.0%} of the in-process rate")
 
 
 def simulate_path(path: Path) -> None:
@@ -295,13 +400,16 @@ def main() -> None:
         return
     peaks = []
     for prusa in paths:
-        peaks.append(whole_path(prusa, loaded))
+        peak, rate = whole_path(prusa, loaded)
+        peaks.append(peak)
+        served_whole_path(prusa, loaded, rate)
         if loaded:
             simulate_path(prusa)
     if len(peaks) == 2:
         sizes_mb = [p.stat().st_size / 1e6 for p in paths]
         print(f"  peak RSS, {sizes_mb[1]:.1f} MB job over {sizes_mb[0]:.1f} MB job: "
               f"{peaks[1] / peaks[0]:.2f}x")
+    served_upload((1.0, 10.0))
 
 
 if __name__ == "__main__":
