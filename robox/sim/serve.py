@@ -12,7 +12,11 @@ that lapse until the host speaks again (or has said nothing for
 arrives while the clock is held is still answered: the clock may then run on
 to `REPLY_MARGIN_S` short of the lapse, enough for any command that does not
 itself wait on the printer. A host polling twice a second stays connected, as
-with a real printer.
+with a real printer. Nothing holds the clock while bytes the host wrote are still
+on their way in (crossing the bus, or landed and not yet taken): the host has
+spoken, and what it said (its next poll, say) can only arrive by the clock
+running on. A printer that does not take them (a deaf receiver) then runs on
+and, 5 s later, counts the host as gone, as the real one would.
 """
 
 from __future__ import annotations
@@ -86,9 +90,11 @@ class PtyServer:
 
     def _host_turn(self) -> float | None:
         """Fast mode: the printer time at which a connected host must be heard from
-        again (None when no host is connected, or it has gone quiet)."""
+        again (None when no host is connected, it has gone quiet, or what it wrote
+        is still on its way in)."""
         command = self.printer.firmware.command
-        if not command.host_connected() or \
+        usb = self.printer.usb
+        if not command.host_connected() or usb.arriving or usb.received or \
                 time.monotonic() - self._last_input > HOST_QUIET_S:
             return None
         margin = REPLY_MARGIN_S if self._reply_owed else FAST_SLICE_S
