@@ -123,11 +123,20 @@ def _show_version(ctx: click.Context, _param: click.Parameter, value: bool) -> N
                    "else 10.")
 @click.option("-v", "--verbose", count=True,
               help="Log the wire on stderr: -v each command and reply, -vv their bytes.")
+@click.option("--wait-lock", type=click.FloatRange(0.0, 86400.0), default=0.0,
+              envvar="ROBOX_WAIT_LOCK", metavar="SECONDS",
+              help="Wait up to SECONDS for a printer, port, image or dump another program "
+                   "is using, instead of refusing at once. Default: $ROBOX_WAIT_LOCK, "
+                   "else 0.")
 @click.pass_context
-def cli(ctx: click.Context, device: str | None, timeout: float, verbose: int) -> None:
+def cli(ctx: click.Context, device: str | None, timeout: float, verbose: int,
+        wait_lock: float) -> None:
     """Drive a CEL Robox printer, its virtual twin, and its card, EEPROM and firmware images."""
     import logging
 
+    from robox.locks import set_wait
+
+    set_wait(wait_lock)  # one command's setting, even when called again in one process
     ctx.obj = {"device": device, "timeout": timeout}
     wire = logging.getLogger("robox.wire")
     wire.handlers.clear()  # one command's settings, even when called again in one process

@@ -59,6 +59,9 @@ def printers_cmd(as_json: bool) -> None:
     if not found and not usb_problem:
         click.echo("no Robox attached over USB")
     for p in found:
+        if p["in_use"]:
+            click.echo(f"(bus {p['bus']}, address {p['address']}): {p['in_use']}")
+            continue
         click.echo(f"{p['unique_id']}  firmware {p['revision']}  (bus {p['bus']}, "
                    f"address {p['address']})")
     for v in virtual:
@@ -196,7 +199,14 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
     if as_json:
         emit_json(summary)
         return
-    click.echo(f"sent {summary['id']}: {summary['bytes']} bytes, {summary['lines']} lines")
+    if summary["already_stored"]:
+        state = "it is printing" if summary["printing"] else \
+            f"not printing (`robox-cli run-job {summary['id']}` prints it)"
+        click.echo(f"{summary['id']} is already on the card (its upload had finished): "
+                   f"nothing sent; {state}")
+    else:
+        click.echo(f"sent {summary['id']}: {summary['bytes']} bytes, {summary['lines']} "
+                   "lines")
     if summary["restarted"]:
         click.echo(f"not printing: the printer lost the interrupted print; once the bed is "
                    f"clear, `robox-cli run-job {summary['id']}` prints it from the start")
@@ -251,8 +261,9 @@ def _upload(printer, file: str, job, file_id: str | None, resume: bool,
         with contextlib.suppress(OSError):
             catalogue.record(printer.unique_id(), name, job.size, job.lines, True, job.sha1)
         summary = {"id": name, "bytes": job.size, "lines": job.lines,
-                   "resumed_from_byte": sent.first_chunk * 512, "restarted": sent.restarted,
-                   "printing": sent.printing}
+                   "resumed_from_byte": job.size if sent.already_stored else
+                   sent.first_chunk * 512, "restarted": sent.restarted,
+                   "already_stored": sent.already_stored, "printing": sent.printing}
         wait = wait and sent.printing
         if wait:
             _follow(printer, name, job.lines, catch_up_lines(source), quiet)
@@ -298,18 +309,19 @@ def _reels(printer) -> dict:
     return remaining
 
 
+class PausedForError(RoboxError):
+    """The print being followed was paused by the printer for an error."""
+
+
 def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool) -> None:
     """Follow the print to its end. Asking for the error report on every poll keeps the
     printer counting a host as connected, as AutoMaker did (no flush-needed or slip
-    pauses that a host handles). A pause that is not the upload's catch-up is reported
-    once and waited out."""
-    reported = set()
-
-    def notice(message: str) -> None:
-        if message not in reported:
-            reported.add(message)
-            click.echo(message, err=True)
-
+    pauses that a host handles). The upload's catch-up pauses are resumed; a pause the
+    printer made for an error ends the wait (PausedForError: what happened and what the
+    user can do); a pause by the user or by the job is said once and waited out, in
+    wall time (a person resumes it), except on a printer in this process, which no
+    other command can reach."""
+    said = False
     with click.progressbar(length=lines, label=f"printing {name}", file=sys.stderr,
                            hidden=quiet) as bar:
         shown = 0
@@ -320,10 +332,32 @@ def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool) -
                 return
             bar.update(max(0, status.line - shown))
             shown = max(shown, status.line)
-            if status.pause in ("pausing", "paused"):
-                printer.resume_if_caught_up(name, whole, notice)
+            why = printer.paused_for(name, whole, status)
+            if why == "catch-up":
+                printer.resume()
+                printer.catch_up_resumes += 1
+            elif why:
+                raise PausedForError(
+                    f"{name} is paused at line {status.line} for an error: "
+                    f"{', '.join(error_names(why))}; once its cause is dealt with, "
+                    "`robox-cli resume` continues it, or `robox-cli abort` ends it")
+            elif why == 0:
+                if getattr(printer, "virtual", None) is not None:
+                    raise PausedForError(
+                        f"{name} is paused at line {status.line} by the job; this printer "
+                        "runs in this command only (--device sim-once), so nothing can "
+                        "resume it")
+                if not said:
+                    said = True
+                    click.echo(f"\n{name} is paused at line {status.line} (by the user or "
+                               "the job): waiting for it to be resumed (Ctrl-C stops waiting "
+                               "and leaves it paused; `robox-cli resume` then continues "
+                               "it)", err=True)
+                time.sleep(POLL_S)
+                continue
             else:
                 printer.errors()
+                said = False
             printer.idle(POLL_S)
 
 

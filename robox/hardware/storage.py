@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from typing import Protocol
 
+from robox.locks import lock_storage
+
 
 class Storage(Protocol):
     size: int
@@ -102,6 +104,12 @@ class FileStorage:
         self.path = os.fspath(path)
         self.writable = writable
         self._file = open(self.path, "r+b" if writable else "rb", buffering=0)  # noqa: SIM115
+        try:
+            # shared to read, exclusive to write, for as long as it is open
+            lock_storage(self._file.fileno(), self.path, exclusive=writable)
+        except BaseException:
+            self._file.close()
+            raise
         self.size = os.fstat(self._file.fileno()).st_size
 
     def read(self, offset: int, length: int) -> bytes:

@@ -30,6 +30,7 @@ from collections import Counter
 from pathlib import Path
 
 from robox.fileio import write_atomically
+from robox.locks import lock_file
 
 SAFE = re.compile(r"[^A-Za-z0-9_.-]")
 
@@ -56,13 +57,15 @@ def load(unique_id: str) -> dict[str, dict]:
 def record(unique_id: str, file_id: str, size: int, lines: int | None, job: bool,
            sha1: str | None = None) -> None:
     """Remember that `file_id` on this printer's card holds `size` bytes."""
-    files = load(unique_id)
-    files[file_id] = {"size": size, "lines": lines, "job": job, "sha1": sha1,
-                      "stored": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
     target = path_for(unique_id)
     target.parent.mkdir(parents=True, exist_ok=True)
-    write_atomically(target, json.dumps({"files": files}, indent=1, sort_keys=True)
-                     .encode("utf-8"))
+    # read, changed and replaced with no other host between (two send-jobs at once)
+    with lock_file(target.with_suffix(".lock"), f"the catalogue {target}"):
+        files = load(unique_id)
+        files[file_id] = {"size": size, "lines": lines, "job": job, "sha1": sha1,
+                          "stored": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+        write_atomically(target, json.dumps({"files": files}, indent=1, sort_keys=True)
+                         .encode("utf-8"))
 
 
 def describe(listed: list[str], known: dict[str, dict]) -> list[dict]:

@@ -100,6 +100,7 @@ class Sent:
     first_chunk: int
     restarted: bool
     printing: bool
+    already_stored: bool = False  # `resume` found the upload finished: nothing was sent
 
 
 class PrinterError(RoboxError):
@@ -334,19 +335,31 @@ class Printer:
         as the catch-up; any other pause (the user's, the job's own M1, an error) is left
         alone, and `notice` hears of it."""
         status = self.status()
-        if status.job != name or status.pause not in ("pausing", "paused"):
+        why = self.paused_for(name, catch_up_lines, status)
+        if why is None:
             return False
-        pausing = self.errors() & PAUSE_MASK_CONNECTED
-        if not pausing and status.line in catch_up_lines:
+        if why == "catch-up":
             self.resume()
             self.catch_up_resumes += 1
             return True
         if notice is not None:
-            reason = f"errors: {', '.join(error_names(pausing))}" if pausing else \
+            reason = f"errors: {', '.join(error_names(why))}" if why else \
                 "by the user or the job"
             notice(f"{name} is {status.pause} at line {status.line} ({reason}); "
                    "it is left paused")
         return False
+
+    def paused_for(self, name: str, catch_up_lines: CatchUpPoints, status: Status
+                   ) -> str | int | None:
+        """Why job `name` is paused, given its `status`: "catch-up" (its reader caught
+        up with the upload), the error bits that pause a job (an int, non-zero), or 0
+        (the user, or the job itself); None when it is not paused."""
+        if status.job != name or status.pause not in ("pausing", "paused"):
+            return None
+        pausing = self.errors() & PAUSE_MASK_CONNECTED
+        if pausing:
+            return pausing
+        return "catch-up" if status.line in catch_up_lines else 0
 
     def send_file(self, data: bytes | BinaryIO, file_id: str, job: bool = True,
                   run: bool = True, resume: bool = False,
@@ -383,6 +396,10 @@ class Printer:
             if open_id is not None and open_id != name:
                 raise RoboxError(f"the printer has no upload of {name!r} to resume (it is "
                                  f"receiving {open_id!r})")
+            if open_id is None and name in self.files():
+                # the upload finished before the link went: the file is on the card (an
+                # id made from the content means the same content), so nothing is sent
+                return Sent(chunks + 1, False, job and self.status().job == name, True)
             if open_id is None:
                 restarted, first, run = True, 0, False
                 if notice is not None:

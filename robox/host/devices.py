@@ -33,6 +33,7 @@ from robox.host.transport import (
     UsbTransport,
     permission_hint,
 )
+from robox.locks import InUse
 
 ENVIRONMENT = "ROBOX_DEVICE"
 SIM_STEP_S = 5.0  # simulated seconds a sim-once printer runs while the host waits
@@ -44,10 +45,11 @@ class NoPrinter(RoboxError):
 
 @dataclass
 class Attached:
-    unique_id: str
-    revision: str
+    unique_id: str | None  # None: another program is using it (`in_use` says which)
+    revision: str | None
     bus: int | None
     address: int | None
+    in_use: str | None = None
 
 
 # libusb's shared libraries by the names their packages install them under: loaded by
@@ -105,7 +107,9 @@ def _open_usb(device, timeout_ms: int = DEFAULT_TIMEOUT_MS, take_over: bool = Fa
     import usb.core
 
     try:
-        return _connect(UsbTransport(device), timeout_ms, take_over=take_over)
+        backend = getattr(getattr(device, "_ctx", None), "backend", None)
+        lock = not getattr(backend, "virtual", False)
+        return _connect(UsbTransport(device, lock=lock), timeout_ms, take_over=take_over)
     except usb.core.USBError as exc:
         if exc.errno in (errno.EACCES, errno.EPERM):
             raise PermissionDenied(permission_hint()) from None
@@ -115,7 +119,11 @@ def _open_usb(device, timeout_ms: int = DEFAULT_TIMEOUT_MS, take_over: bool = Fa
 def list_printers() -> list[Attached]:
     found = []
     for device in _usb_devices():
-        printer = _open_usb(device)
+        try:
+            printer = _open_usb(device)
+        except InUse as exc:  # its port is locked: listed, not asked
+            found.append(Attached(None, None, device.bus, device.address, str(exc)))
+            continue
         try:
             found.append(Attached(printer.unique_id(), printer.revision(), device.bus,
                                   device.address))

@@ -8,10 +8,11 @@ Failures become robox.errors types a user can act on.
 from __future__ import annotations
 
 import errno
+import os
 import time
 
 from robox.errors import RoboxError
-from robox.locks import lock_port
+from robox.locks import lock_port, port_lock
 
 VENDOR_ID = 0x16D0
 PRODUCT_ID = 0x081B
@@ -43,12 +44,32 @@ def permission_hint() -> str:
 class UsbTransport:
     """Bulk endpoints of the Robox's CDC data interface, through pyusb."""
 
-    def __init__(self, device):
+    def __init__(self, device, lock: bool = False):
+        """`lock`: take the device's port lock first (a real printer; a virtual one is
+        locked by its state directory)."""
         import usb.core
         import usb.util
 
         self._usb = usb
         self.device = device
+        self._lock = None
+        if lock:
+            self._lock = port_lock(f"the printer on USB bus {device.bus} address "
+                                   f"{device.address}",
+                                   key=f"usb-{device.bus}-{device.address}")
+        try:
+            self._claim(device)
+        except BaseException:
+            self._unlock()
+            raise
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)
+            self._lock = None
+
+    def _claim(self, device) -> None:
+        usb = self._usb
         try:
             for interface in (0, DATA_INTERFACE):
                 if device.is_kernel_driver_active(interface):
@@ -102,6 +123,8 @@ class UsbTransport:
             self._usb.util.dispose_resources(self.device)
         except self._usb.core.USBError:
             pass
+        finally:
+            self._unlock()
 
 
 class SerialTransport:
@@ -111,17 +134,30 @@ class SerialTransport:
         import serial
 
         self._serial = serial
+        # locked before it is opened: opening a tty flushes what it has received, which
+        # may be the reply the port's holder is waiting for
+        self._lock = port_lock(path)
         try:
             self.port = serial.Serial(path, 115200, timeout=0.05, write_timeout=5)
         except serial.SerialException as exc:
+            self._unlock()
             if isinstance(exc.__context__, PermissionError) or "ermission" in str(exc):
                 raise PermissionDenied(f"{path}: {permission_hint()}") from None
             raise TransportError(f"{path}: cannot open: {exc.strerror or exc}") from None
+        except BaseException:
+            self._unlock()
+            raise
         try:
-            lock_port(self.port.fileno(), path)  # one host at a time on a port
+            lock_port(self.port.fileno(), path)  # for other programs that lock the device
         except BaseException:
             self.port.close()
+            self._unlock()
             raise
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)
+            self._lock = None
 
     def write(self, data: bytes, timeout_ms: int = 5000) -> None:
         try:
@@ -143,4 +179,7 @@ class SerialTransport:
                 raise NoReply("the printer did not answer")
 
     def close(self) -> None:
-        self.port.close()
+        try:
+            self.port.close()
+        finally:
+            self._unlock()

@@ -19,6 +19,7 @@ from robox.formats.eeprom import CHIP_SIZE, DATA_SIZE, EepromIndex
 from robox.hardware.clock import SimClock
 from robox.hardware.eeprom import EepromChip
 from robox.hardware.eeprom_bus import EepromBus
+from robox.locks import locked_path
 
 #: Loop passes allowed for a load or a rewrite of both banks (generous).
 MAX_PASSES = 100_000
@@ -145,6 +146,11 @@ def run_until(eeproms: Eeproms, clock: SimClock, done) -> None:
 
 def set_dump(path: str | os.PathLike, assignments: list[str], kind: str | None = None) -> dict:
     """Change fields as a printer would (load, masked writes, both banks rewritten)."""
+    with locked_path(path):  # read, changed and replaced with no other writer between
+        return _set_dump(path, assignments, kind)
+
+
+def _set_dump(path: str | os.PathLike, assignments: list[str], kind: str | None) -> dict:
     chip_bytes = read_dump(path)
     pairs = parse_assignments(assignments)
     loaded = fmt.loaded_bank(chip_bytes)

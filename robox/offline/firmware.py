@@ -10,6 +10,7 @@ from robox import fileio
 from robox.errors import ImageError, RoboxError, UsageError
 from robox.fileio import write_atomically
 from robox.formats import firmware as fw
+from robox.locks import locked_path
 
 _HEX_OFFSET = re.compile(r"^\s*(0[xX])?([0-9A-Fa-f]+)\s*$")
 
@@ -35,6 +36,11 @@ def _check_writable(path: str | os.PathLike) -> None:
 
 def inject(path: str | os.PathLike, offset: int = fw.DEFAULT_OFFSET) -> dict:
     """Insert the anti-checksum in place, atomically, only once every check has passed."""
+    with locked_path(path):  # read, changed and replaced with no other writer between
+        return _inject(path, offset)
+
+
+def _inject(path: str | os.PathLike, offset: int) -> dict:
     image = read_input(path)
     result = fw.insert_anti_checksum(image, offset)
     if not result.inserted:

@@ -191,6 +191,7 @@ class VirtualPrinter:
 
     def _power_up(self, card_blocks: int, media: Media | None) -> None:
         chips: dict[EepromIndex, EepromChip | None] = {}
+        self._dumps_at_power_up: dict[int, FileStorage] = {}
         if media is not None:
             if self.state_dir is not None:
                 raise ValueError("media are for an in-memory printer")
@@ -217,10 +218,11 @@ class VirtualPrinter:
             for index, name in CHIP_FILES.items():
                 path = self.state_dir / name
                 if path.exists():
-                    data = path.read_bytes()
-                    if len(data) != CHIP_SIZE:
-                        raise ImageError(f"{path}: {len(data)} bytes; a chip dump is 512")
-                    chips[index] = EepromChip(data)
+                    # open (and locked) while the printer is on: written in place
+                    dump = self._dumps_at_power_up[index] = self._open(path)
+                    if dump.size != CHIP_SIZE:
+                        raise ImageError(f"{path}: {dump.size} bytes; a chip dump is 512")
+                    chips[index] = EepromChip(dump.read(0, CHIP_SIZE))
                 else:
                     chips[index] = None
         bus = EepromBus(chips.get(EepromIndex.HEAD), chips.get(EepromIndex.REEL0),
@@ -231,7 +233,8 @@ class VirtualPrinter:
             if chip is not None:
                 chip.clock = self.hw.clock
         self._saved_writes = [c.writes if c else 0 for c in bus.sockets]
-        self._chip_dumps: dict[int, FileStorage] = {}  # dumps open to write in place
+        # dumps open to write in place
+        self._chip_dumps: dict[int, FileStorage] = dict(self._dumps_at_power_up)
         self._filament_loaded = False
         if self.state_dir is not None:
             for name, feed in read_filament(self.state_dir).items():

@@ -37,6 +37,8 @@ class _DeviceId:
 
 
 class VirtualRoboxBackend(usb.backend.IBackend):
+    virtual = True  # its printer is locked by its state directory, not as a USB port
+
     def __init__(self, printer: VirtualPrinter):
         self.printer = printer
         self.device = _DeviceId()

@@ -147,3 +147,27 @@ def test_a_cable_pulled_at_every_chunk_of_a_printing_upload_then_resume(monkeypa
         assert stored == expected, f"cable pulled at chunk {cut} ({moment})"
         assert virtual.run_until(lambda v=virtual: v.firmware.job.jobs_completed == 1, 600), \
             f"the job did not print to its end after the cable was pulled at chunk {cut}"
+
+
+def test_a_printer_another_program_uses_is_listed_as_in_use_and_refused(monkeypatch):
+    """A USB printer's port is locked before its interface is claimed: `printers` lists
+    one in use by whom, and a command on it is refused in one line."""
+    import os
+
+    from robox.locks import describe_pid, port_lock
+
+    monkeypatch.setattr(VirtualRoboxBackend, "virtual", False)  # locked as a real one
+    device, _ = attached(b"RBX-BUSY-0001")
+    monkeypatch.setattr(devices, "_usb_devices", lambda: [device])
+    held = port_lock("held", key=f"usb-{device.bus}-{device.address}")
+    try:
+        listed = run("printers").output.splitlines()
+        busy = (f"the printer on USB bus {device.bus} address {device.address} is in use by "
+                f"{describe_pid(os.getpid())}")
+        assert listed == [f"(bus {device.bus}, address {device.address}): {busy}"]
+        result = CliRunner().invoke(cli, ["--device", "usb", "status"])
+        assert result.exit_code == 1 and result.output.splitlines() == [
+            f"robox-cli: error: {busy}"]
+    finally:
+        os.close(held)
+    assert "RBX-BUSY-0001  firmware" in run("printers").output

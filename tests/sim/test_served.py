@@ -125,6 +125,28 @@ def test_an_upload_cut_off_resumes_on_the_served_printer(state, tmp_path):
     assert hashlib.sha256(stored).hexdigest() == hashlib.sha256(JOB).hexdigest()
 
 
+def test_resume_of_an_upload_that_had_finished_sends_nothing(state, tmp_path):
+    """The link went after the last chunk was acknowledged: the file is on the card and
+    printing, so --resume says so, sends nothing and leaves one copy."""
+    job = tmp_path / "part.gcode"
+    job.write_bytes(JOB)
+    first = run("--device", f"sim:{state}", "send-job", job, "--raw", "--id", "part")
+    assert first.exit_code == 0, first.output
+    again = run("--device", f"sim:{state}", "send-job", job, "--raw", "--id", "part",
+                "--resume")
+    assert again.exit_code == 0, again.output
+    assert again.stdout.splitlines() == [
+        "part is already on the card (its upload had finished): nothing sent; it is printing"]
+    as_json = json.loads(run("--device", f"sim:{state}", "send-job", job, "--raw", "--id",
+                             "part", "--resume", "--json").stdout)
+    assert as_json["already_stored"] is True and as_json["printing"] is True
+    assert json.loads(run("--device", f"sim:{state}", "status", "--json").stdout)["job"] \
+        == "part"
+    listed = json.loads(run("--device", f"sim:{state}", "files", "--json").stdout)
+    assert [f["id"] for f in listed].count("part") == 1
+    assert run("sim", "stop", "--state", state).exit_code == 0
+
+
 def test_one_host_at_a_time_on_a_served_printers_port(state):
     started = run("sim", "serve", "--detach", "--state", state)
     assert started.exit_code == 0, started.output

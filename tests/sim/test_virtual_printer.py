@@ -13,6 +13,7 @@ from click.testing import CliRunner
 
 from robox.cli import cli
 from robox.formats.protocol import reply_length
+from robox.locks import describe_pid
 from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
 from tests.firmware.wire import Wire, circle_job, hexn, ident
@@ -49,12 +50,18 @@ def test_state_persists_between_runs_and_the_card_is_written_through(tmp_path):
         wire.wait_job_done()
         printer.run_until(lambda: False, 7.5)  # the 7.2 s filament bookkeeping
         printer.settle()
-        # another process can read the card once the job is done, while we run
-        listing = json.loads(run_cli("sdcard", "ls", str(state / "sdcard.img"), "--json").output)
-        bundled = ["square_tower", "spiral_vase", "home_macro"]  # the bundled card's files
-        assert [f["id"] for f in listing["files"]] == [*bundled[:2], "persist"]
+        # the printer, switched on, may write its card at any pass: nobody else reads
+        # it meanwhile, and is told who has it
+        refused = run_cli("sdcard", "ls", str(state / "sdcard.img"), "--json")
+        assert refused.exit_code == 1
+        assert refused.output.strip().splitlines() == [
+            f"robox-cli: error: {state / 'sdcard.img'} is in use by PID {os.getpid()} "
+            f"({describe_pid(os.getpid()).split(' (', 1)[1]}"]
         remaining = printer.firmware.eeproms.get_float(1, "remaining_filament")
     assert remaining < 240000.0
+    listing = json.loads(run_cli("sdcard", "ls", str(state / "sdcard.img"), "--json").output)
+    bundled = ["square_tower", "spiral_vase", "home_macro"]  # the bundled card's files
+    assert [f["id"] for f in listing["files"]] == [*bundled[:2], "persist"]
     dumped = json.loads(run_cli("eeprom", "show", str(state / "reel0.eeprom"), "--json").output)
     assert dumped["fields"]["remaining_filament"]["value"] == remaining
     with VirtualPrinter(state) as again:
