@@ -1,9 +1,25 @@
-"""Host file helpers: replace a file atomically (temporary sibling, then rename)."""
+"""Host file helpers: outputs written whole or not at all, through links, never over an
+input, and inputs read with a plain one-line refusal.
+
+`replacing(path)` yields a temporary file to write; once it is written whole, the file
+`path` names gets its content:
+
+- a regular file (or none yet) is replaced by a rename of the temporary file, which is
+  fsynced first; the directory is fsynced after, so what a command reports as saved
+  survives a power cut;
+- through a symbolic link, the file it points to is replaced and the link stays;
+- a regular file with other names (hard links) is rewritten in place, so that every
+  name sees the new content (a rename would leave the other names on the old one);
+- a device node or FIFO is written to as a stream, never replaced.
+
+An error while writing names the user's path, never the temporary one.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import stat
 import tempfile
 from collections.abc import Iterator
@@ -19,25 +35,91 @@ def _mode_for(target: Path) -> int:
         return 0o666 & ~umask
 
 
+def fsync_directory(directory: str | os.PathLike) -> None:
+    """Make a rename or a new name in `directory` durable (best effort where the file
+    system cannot)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError:
+        return
+    try:
+        with contextlib.suppress(OSError):
+            os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_file(path: str | os.PathLike) -> None:
+    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 @contextlib.contextmanager
 def replacing(path: str | os.PathLike) -> Iterator[str]:
-    """Yield a temporary path beside `path`; on success it replaces `path`.
+    """Yield a temporary path; once the block has written it, the file `path` names
+    gets its content (see the module's docstring). On any exception the temporary
+    file is removed and that file is untouched. A new file gets the umask's mode, a
+    replaced one keeps its own."""
+    from robox.errors import ImageError
 
-    On any exception the temporary file is removed and `path` is untouched.
-    The new file gets the old file's mode, or the umask's for a new file.
-    """
-    target = Path(path)
-    fd, temp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",
-                                dir=target.parent if str(target.parent) else ".")
+    target = Path(os.path.realpath(path))
+    try:
+        info = os.stat(target)
+    except OSError:
+        info = None
+    stream = info is not None and not stat.S_ISREG(info.st_mode)
+    in_place = info is not None and not stream and info.st_nlink > 1
+    directory = tempfile.gettempdir() if stream or in_place else str(target.parent)
+    try:
+        fd, temp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
+    except OSError as exc:
+        raise ImageError(f"{path}: cannot write: {exc.strerror}") from None
     os.close(fd)
     try:
         yield temp
-        os.chmod(temp, _mode_for(target))
-        os.replace(temp, target)
+        if stream or in_place:
+            with open(temp, "rb") as source, open(target, "r+b" if in_place else "wb") as out:
+                shutil.copyfileobj(source, out, 1 << 20)
+                if in_place:
+                    out.truncate()
+                    out.flush()
+                    os.fsync(out.fileno())
+            os.unlink(temp)
+        else:
+            os.chmod(temp, _mode_for(target))
+            _fsync_file(temp)
+            os.replace(temp, target)
+            fsync_directory(target.parent)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(temp)
+        raise ImageError(f"{path}: cannot write: {exc.strerror or exc}") from None
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(temp)
         raise
+
+
+def refuse_overwriting(output: str | os.PathLike, *inputs: str | os.PathLike) -> None:
+    """Refuse (a usage error, one line) an output that is one of the inputs, by name or
+    through a link: the command would destroy what it reads."""
+    from robox.errors import UsageError
+
+    try:
+        out = os.stat(output)
+    except OSError:
+        return
+    for source in inputs:
+        try:
+            info = os.stat(source)
+        except OSError:
+            continue
+        if (info.st_dev, info.st_ino) == (out.st_dev, out.st_ino):
+            raise UsageError(f"{output}: that is the input {source}; write the output to "
+                             "another file")
 
 
 def read_input(path: str | os.PathLike, what: str = "file", limit: int | None = None,

@@ -80,3 +80,18 @@ def confirm(yes: bool, question: str) -> None:
                          "to confirm")
     if not click.confirm(question + "?", default=False, err=True):
         raise RoboxError("not confirmed: nothing was changed")
+
+
+def guard_output(output: str, inputs: tuple[str, ...] = (), writing: str = "",
+                 yes: bool = False) -> None:
+    """Before anything is written to `output`: refuse it when it is one of `inputs`
+    (through a link too), and ask before writing `writing` over a file that is a card
+    image or an EEPROM dump of another kind."""
+    from robox.fileio import refuse_overwriting
+    from robox.offline.identify import identify
+
+    refuse_overwriting(output, *inputs)
+    kind = identify(output)
+    if kind is not None and kind != writing:
+        confirm(yes, f"{output} is {kind}; write {writing or 'the output'} over it")
+

@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, emit_json, json_option
+from robox.cli.common import EXIT_PROBLEM, emit_json, guard_output, json_option, yes_option
 from robox.fileio import write_atomically
 from robox.offline import eeprom as dumps
 
@@ -25,11 +25,15 @@ def eeprom() -> None:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False),
               help="The dump file to write.")
 @set_option
+@yes_option
 @json_option
-def new_cmd(kind: str, output: str, assignments: tuple[str, ...], as_json: bool) -> None:
+def new_cmd(kind: str, output: str, assignments: tuple[str, ...], yes: bool,
+            as_json: bool) -> None:
     """Write a KIND EEPROM dump with both banks valid (a reel's multipliers 1.0, every
     other field zero, unless --set)."""
-    write_atomically(output, dumps.new_dump(kind, list(assignments)))
+    dump = dumps.new_dump(kind, list(assignments))  # (the fields checked first)
+    guard_output(output, (), "an EEPROM dump", yes)
+    write_atomically(output, dump)
     if as_json:
         emit_json({"dump": output, "kind": kind, "set": list(assignments)})
     else:

@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, emit_json, json_option
+from robox.cli.common import EXIT_PROBLEM, emit_json, guard_output, json_option, yes_option
 from robox.formats.firmware import DEFAULT_OFFSET
 from robox.offline import firmware as images
 
@@ -62,9 +62,11 @@ def verify_cmd(file: str, offset_text: str, as_json: bool) -> None:
 @firmware.command("to-sd")
 @click.argument("bin_file", metavar="BIN", type=click.Path(dir_okay=False, readable=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False))
+@yes_option
 @json_option
-def to_sd_cmd(bin_file: str, output: str, as_json: bool) -> None:
+def to_sd_cmd(bin_file: str, output: str, yes: bool, as_json: bool) -> None:
     """Write BIN as an SD firmware file (two upper-case hex digits per byte)."""
+    guard_output(output, (bin_file,), "an SD firmware file", yes)
     result = images.to_sd(bin_file, output)
     if as_json:
         emit_json(result)
@@ -75,9 +77,11 @@ def to_sd_cmd(bin_file: str, output: str, as_json: bool) -> None:
 @firmware.command("from-sd")
 @click.argument("file", type=click.Path(dir_okay=False, readable=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False))
+@yes_option
 @json_option
-def from_sd_cmd(file: str, output: str, as_json: bool) -> None:
+def from_sd_cmd(file: str, output: str, yes: bool, as_json: bool) -> None:
     """Write the binary held in an SD firmware file."""
+    guard_output(output, (file,), "a firmware image", yes)
     result = images.from_sd(file, output)
     if as_json:
         emit_json(result)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, emit_json, json_option
+from robox.cli.common import EXIT_PROBLEM, emit_json, guard_output, json_option, yes_option
 from robox.errors import UsageError
 from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT
 
@@ -62,13 +62,16 @@ macros_option = click.option(
 @click.option("--no-sequences", is_flag=True,
               help="Leave out the start and end sequences (home, heat, level, purge; park, "
                    "heaters off, door unlock).")
+@yes_option
 @json_option
 def roboxise_cmd(source: str, target: str, filament_diameter: float, head: str,
                  nozzle: int | None, macros: Path | None, valve: str, ejection: str | None,
-                 no_sequences: bool, as_json: bool) -> None:
+                 no_sequences: bool, yes: bool, as_json: bool) -> None:
     """Translate a slicer's G-code IN into a Robox job OUT: E to cubic millimetres, the
     needle valve for retractions, Robox temperature codes, start and end sequences."""
     from robox.gcode import Options, roboxise_file
+
+    guard_output(target, (source,), "a Robox job", yes)
 
     options = Options(filament_diameter=(filament_diameter, filament_diameter), head=head,
                       nozzle=nozzle, macros=macros, sequences=not no_sequences, valve=valve,

@@ -8,7 +8,14 @@ from pathlib import Path
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, confirm, emit_json, json_option, yes_option
+from robox.cli.common import (
+    EXIT_PROBLEM,
+    confirm,
+    emit_json,
+    guard_output,
+    json_option,
+    yes_option,
+)
 from robox.fileio import open_input, write_atomically
 from robox.formats.sdcard import default_id
 from robox.offline import sdcard as images
@@ -90,8 +97,11 @@ def put_cmd(image: str, file: str, file_id: str | None, job: bool, as_json: bool
 @click.argument("file_id", metavar="ID")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, readable=False),
               help="Write to this file instead of standard output.")
-def get_cmd(image: str, file_id: str, output: str | None) -> None:
+@yes_option
+def get_cmd(image: str, file_id: str, output: str | None, yes: bool) -> None:
     """Copy the newest file with id ID from IMAGE, byte-exact."""
+    if output is not None:
+        guard_output(output, (image,), "a file from the card", yes)
     data = images.get_file(image, file_id)
     if output is None:
         sys.stdout.buffer.write(data)
