@@ -135,6 +135,11 @@ class RoboxPlugin:
             options = printer_options(link.printer, None, None, None)
         prepared = contextlib.ExitStack()
         job = prepared.enter_context(job_file(path, options))
+        try:
+            job.refuse_long_lines()  # before the first chunk, as send-job does
+        except BaseException:
+            prepared.close()
+            raise
         remote = default_id(Path(filename).stem, job.sha1)
 
         def run() -> None:

@@ -238,6 +238,7 @@ def _upload(printer, file: str, job, file_id: str | None, resume: bool,
     if len(name.encode("ascii", "replace")) > 16:
         raise UsageError(f"job id {name!r} is longer than 16 characters")
     make_id(name)  # refuses an empty or non-ASCII id
+    job.refuse_long_lines()  # before the first chunk
     before = _reels(printer) if wait else {}
     started = time.monotonic()
     sim = getattr(printer, "virtual", None)

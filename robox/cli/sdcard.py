@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 import sys
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from robox.cli.common import (
     json_option,
     yes_option,
 )
+from robox.errors import ImageError
 from robox.fileio import open_input, write_atomically
 from robox.formats.sdcard import default_id
 from robox.offline import sdcard as images
@@ -76,6 +78,11 @@ def ls_cmd(image: str, as_json: bool) -> None:
 def put_cmd(image: str, file: str, file_id: str | None, job: bool, as_json: bool) -> None:
     """Store FILE on IMAGE as a printer receives it (start, 512-byte chunks, end)."""
     with open_input(file, "a file to store") as source:
+        size = os.fstat(source.fileno()).st_size
+        largest = images.largest_file(image)  # refused by size before it is read
+        if size > largest:
+            raise ImageError(f"{file}: {size} bytes; the largest file {image} holds is "
+                             f"{largest} bytes")
         if file_id is None:
             digest = hashlib.sha1()
             for block in iter(lambda: source.read(1 << 16), b""):

@@ -26,13 +26,13 @@ from typing import TYPE_CHECKING, Any, Final
 
 from robox.firmware.carith import f32, to_ulong
 from robox.firmware.cline import Line, strtol
-from robox.formats.protocol import ErrorBit
+from robox.formats.protocol import JOB_LINE_LIMIT, ErrorBit
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
 
 BUFFER_SIZE: Final = 1024
-LINE_LIMIT: Final = BUFFER_SIZE // 2
+LINE_LIMIT: Final = JOB_LINE_LIMIT  # BUFFER_SIZE // 2
 IDLE_PAUSE_S: Final = 600.0
 IDLE_ABORT_S: Final = 3600.0
 SLIP_COUNT_DECAY_S: Final = 300.0

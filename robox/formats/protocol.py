@@ -5,6 +5,11 @@ from enum import IntEnum
 #: Number of characters in the ack/errors report 0xe3 (one per error bit).
 ERROR_REPORT_BITS = 64
 
+#: A job read from the card is taken a line at a time from a 1024-byte buffer; once half
+#: of it holds no line end, the printer latches GCODE_LINE_TOO_LONG and aborts the job.
+#: So a job line has fewer bytes than this before its line end.
+JOB_LINE_LIMIT = 512
+
 
 class ErrorBit(IntEnum):
     """Error bits of the ack/errors report 0xe3; the value is the bit number."""

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from robox.errors import ImageError
 from robox.fileio import open_input, read_chunks, replacing
+from robox.formats.protocol import JOB_LINE_LIMIT
 from robox.gcode.text import code_part, looks_like_gcode, split_lines
 from robox.gcode.translate import Detected, Options, Summary, detect, translate
 
@@ -92,6 +93,31 @@ class JobFile:
     lines: int
     sha1: str
     translation: Summary | None  # None: sent as it is
+    long_line: tuple[int, int] | None = None  # (number, bytes) of the first line too long
+    source: str = ""
+
+    def refuse_long_lines(self) -> None:
+        """Refuse to upload a job with a line the printer would abort it on (ImageError);
+        `simulate` prints it instead, and shows the abort."""
+        if self.long_line is not None:
+            number, length = self.long_line
+            raise ImageError(f"{self.source}: job line {number} is {length} bytes; the "
+                             f"printer reads lines of at most {JOB_LINE_LIMIT - 1} (it would "
+                             "abort the job there)")
+
+
+def _first_long_line(job: Path) -> tuple[int, int]:
+    """The number and length of the job's first line too long for the printer."""
+    number, run = 1, 0
+    with open(job, "rb") as handle:
+        for chunk in read_chunks(handle):
+            for k, part in enumerate(chunk.split(b"\r")):
+                if k:  # the line before this part ended
+                    if run >= JOB_LINE_LIMIT:
+                        return number, run
+                    number, run = number + 1, 0
+                run += len(part)
+    return number, run
 
 
 @contextlib.contextmanager
@@ -105,11 +131,20 @@ def job_file(source: str | os.PathLike, options: Options | None) -> Iterator[Job
             strip_file(source, target)
         else:
             summary = roboxise_file(source, target, options)
-        digest, lines = hashlib.sha1(), 0
+        digest, lines, longest, run = hashlib.sha1(), 0, 0, 0
         with open(target, "rb") as handle:
             for chunk in read_chunks(handle):
                 digest.update(chunk)
-                lines += chunk.count(b"\r")
+                ends = chunk.count(b"\r")
+                lines += ends
+                if not ends:
+                    run += len(chunk)
+                    continue
+                parts = chunk.split(b"\r")
+                longest = max(longest, run + len(parts[0]), *map(len, parts[1:-1]))
+                run = len(parts[-1])
         if not lines:
             raise ImageError(f"{source}: no G-code commands in the file")
-        yield JobFile(target, target.stat().st_size, lines, digest.hexdigest(), summary)
+        long_line = _first_long_line(target) if max(longest, run) >= JOB_LINE_LIMIT else None
+        yield JobFile(target, target.stat().st_size, lines, digest.hexdigest(), summary,
+                      long_line, str(source))

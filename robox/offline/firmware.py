@@ -100,5 +100,11 @@ def from_sd(path: str | os.PathLike, out: str | os.PathLike) -> dict:
         image = fw.from_sd_text(text)
     except ValueError as exc:
         raise ImageError(f"{path}: not an SD firmware file: {exc}") from None
+    short = [detail for check, detail in fw.check_sd_text(text).failures
+             if check in (fw.Check.LENGTH_NOT_MULTIPLE, fw.Check.TOO_SHORT)]
+    if short:
+        raise ImageError(f"{path}: not a whole SD firmware file ({short[0]}: a printer "
+                         f"takes a multiple of {fw.TEXT_MULTIPLE} characters, at least "
+                         f"{fw.TEXT_MIN}); was it cut short?")
     write_atomically(out, image)
     return {"input": str(path), "output": str(out), "bytes": len(image), "characters": len(text)}

@@ -134,6 +134,7 @@ def format_image(path: str | os.PathLike, blocks: int | None,
             return {"image": str(path), "capacity_blocks": card.capacity, "created": False}
     if blocks is None:
         raise UsageError(f"{path} does not exist: give --size to create it")
+    check_image_size(path, blocks * BLOCK_SIZE)  # (said of the user's path, not the temporary)
     with replacing(target) as temp:
         with open(temp, "r+b") as handle:
             handle.truncate(blocks * BLOCK_SIZE)
@@ -199,6 +200,12 @@ def get_file(path: str | os.PathLike, file_id: str) -> bytes:
 def put_file(path: str | os.PathLike, data: bytes, file_id: str, job: bool) -> dict:
     """Store `data` as a printer receives a file: start, 512-byte chunks, end."""
     return put_stream(path, io.BytesIO(data), file_id, job)
+
+
+def largest_file(path: str | os.PathLike) -> int:
+    """The most bytes a file stored on the image can have (read from its size alone)."""
+    with open_card(path) as card:
+        return (card.capacity - 2) * BLOCK_SIZE
 
 
 def put_stream(path: str | os.PathLike, source: BinaryIO, file_id: str, job: bool) -> dict:

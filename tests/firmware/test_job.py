@@ -5,7 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robox.firmware.gcode import IDLE_ABORT_S, IDLE_PAUSE_S, line_length
-from robox.formats.protocol import ErrorBit
+from robox.formats.protocol import JOB_LINE_LIMIT, ErrorBit
 from robox.native import compiled_modules
 from tests.firmware.test_protocol import status_fields
 from tests.firmware.wire import circle_job, hexn, ident, job_text
@@ -255,3 +255,36 @@ def c_line_length(buffer: bytes) -> int:
                                           max_size=12).map(b"".join))
 def test_line_length_is_the_firmwares(buffer):
     assert line_length(buffer) == c_line_length(buffer)
+
+
+def long_line_job(offset: int, length: int) -> bytes:
+    """A job whose line of `length` bytes (before its CR) starts `offset` bytes in (after
+    short lines)."""
+    lead = []
+    while offset:
+        size = min(offset, 100) if offset - min(offset, 100) not in range(1, 8) else 50
+        lead.append("M117 " + "a" * (size - 6))
+        offset -= size
+    return job_text([*lead, "M117 " + "b" * (length - 5), "G4 P1"])
+
+
+@pytest.mark.parametrize("offset", [0, 8, 300, 505, 511, 512, 700, 1023])
+def test_a_job_line_one_short_of_the_limit_prints_wherever_it_falls(wire, offset):
+    """The host refuses job lines of JOB_LINE_LIMIT bytes or more (`send-job`): one byte
+    less is read whole wherever it falls in the file's chunks."""
+    wire.upload("long", long_line_job(offset, JOB_LINE_LIMIT - 1))
+    wire.clear()
+    wire.ok(b"\x94" + ident("long"))
+    wire.wait_job_done()
+    assert not wire.fw.errors.is_set(ErrorBit.GCODE_LINE_TOO_LONG)
+    assert ("job finished", ident("long")) in wire.fw.events
+
+
+def test_a_job_line_of_the_limit_at_the_start_of_a_file_aborts_the_job(wire):
+    """Whether a longer line is read depends on where the reads of the card split it:
+    at the start of the file, one of JOB_LINE_LIMIT bytes is not."""
+    wire.upload("long", long_line_job(0, JOB_LINE_LIMIT))
+    wire.clear()
+    wire.ok(b"\x94" + ident("long"))
+    wire.wait_job_done()
+    assert wire.fw.errors.is_set(ErrorBit.GCODE_LINE_TOO_LONG)

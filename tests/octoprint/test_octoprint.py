@@ -242,13 +242,14 @@ def test_octoprint_drives_a_robox(rig, tmp_path):
     op.call("POST", "/api/job", {"command": "cancel"})
     op.until("Operational after cancel", lambda: op.state() == "Operational", timeout=60)
 
-    # --- a printer error becomes an OctoPrint notification
-    bad = b"M117 " + b"A" * 700 + b"\nG4 S1\n"
-    op.upload_to_card("bad_line.gcode", bad, print_it=True)
+    # --- a printer error becomes an OctoPrint notification: a dual head's nozzle 1
+    # heated on a single-material head, whose thermistor input reads open
+    bad = b"M104 T200\nG4 S60\n"
+    op.upload_to_card("bad_heat.gcode", bad, print_it=True)
 
     def notified():
         notes = op.call("GET", "/api/plugin/action_command_notification")["notifications"]
-        return [n for n in notes if "line too long" in n["message"]]
+        return [n for n in notes if "nozzle 1 thermistor" in n["message"]]
     op.until("the error as a notification", notified, timeout=90, every=0.2)
 
     # --- the card holds the job as robox-cli would have stored it
