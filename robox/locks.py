@@ -43,6 +43,8 @@ from robox.errors import RoboxError
 LOCK_NAME = "printer.lock"
 RECORD_WAIT_S = 1.0  # how long a reader waits for a new holder to write its record
 RETRY_S = 0.05  # how often a waiting process tries a lock again
+HOLDER_LOOKS = 5  # how often a refused process looks for a holder that keeps changing
+UNKNOWN_HOLDER = "another process"
 BRIEF_WAIT_S = 10.0  # how long a lock held only for a moment (a catalogue's) is waited for
 SHARED_LOCK_DIRS = ("/run/lock", "/var/lock")
 
@@ -67,8 +69,20 @@ def take(fd: int, exclusive: bool, refusal: Callable[[], str],
             return
         except BlockingIOError:
             if time.monotonic() >= deadline:
-                raise InUse(refusal()) from None
+                break
             time.sleep(RETRY_S)
+    # refused: a holder that left while it was looked up is not "another process" but
+    # nobody, so the lock is tried again (a few times, for holders that come and go)
+    for _ in range(HOLDER_LOOKS):
+        message = refusal()
+        if UNKNOWN_HOLDER not in message:
+            raise InUse(message)
+        try:
+            fcntl.flock(fd, flags)
+            return
+        except BlockingIOError:
+            time.sleep(RETRY_S / 10)
+    raise InUse(message)
 
 
 class InUse(RoboxError):
@@ -77,7 +91,7 @@ class InUse(RoboxError):
 
 def describe_pid(pid: int | None) -> str:
     if pid is None:
-        return "another process"
+        return UNKNOWN_HOLDER
     try:
         with open(f"/proc/{pid}/cmdline", "rb") as handle:
             words = [w.decode(errors="replace") for w in handle.read().split(b"\0") if w]
@@ -156,7 +170,7 @@ class DirectoryLock:
 
 def describe_holder(record: dict | None) -> str:
     if not record:
-        return "another process"
+        return UNKNOWN_HOLDER
     what = describe_pid(record.get("pid"))
     if record.get("role") == "serve":
         return f"{what}, serving it on {record.get('pty') or 'a pseudo-terminal'}"
