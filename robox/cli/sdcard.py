@@ -119,13 +119,16 @@ def get_cmd(image: str, file_id: str, output: str | None, yes: bool) -> None:
 
 @sdcard.command("fsck")
 @click.argument("image", type=click.Path(dir_okay=False, readable=False))
+@click.option("--deep", is_flag=True, help="Scan the whole card for recovery copies even "
+                                           "when block 0 is valid (a mount does not).")
 @json_option
-def fsck_cmd(image: str, as_json: bool) -> None:
+def fsck_cmd(image: str, deep: bool, as_json: bool) -> None:
     """Check IMAGE: validity, what a printer would do at mount, extents, recovery copy.
 
-    Exits 1 when a printer would format the card.
+    Reads what a mount reads: the whole card only when block 0 is not a valid
+    directory, or with --deep. Exits 1 when a printer would format the card.
     """
-    report = images.fsck_image(image)
+    report = images.fsck_image(image, deep)
     if as_json:
         emit_json(report)
     else:
@@ -156,7 +159,10 @@ def _print_fsck(report: dict) -> None:
         click.echo(f"  slot {f['slot']:>2}: {job} {f['id']!r}, {f['length']} bytes, blocks "
                    f"{f['start_block']}..{f['end_block']}{wraps}{last}")
     copy = report["recovery_copy"]
-    if copy is None:
+    if report["recovery_copies"] is None:
+        click.echo("recovery copy: not looked for (block 0 is valid, so a mount reads none; "
+                   "--deep scans the card)")
+    elif copy is None:
         click.echo("recovery copy: none")
     else:
         state = "matches the directory" if copy["matches_directory"] else "differs"

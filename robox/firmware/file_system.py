@@ -75,6 +75,8 @@ class MountPlan:
     copy: RecoveryCopy | None  # the copy recovered from
     generation: int  # generation of the directory in use
     repairs: tuple[str, ...]  # derived fields corrected in memory
+    copies: tuple[RecoveryCopy, ...] | None = None  # every valid copy (None: not scanned,
+    # as block 0 was valid)
 
 
 def derive(d: Directory, verdict: Verdict, capacity: int) -> tuple[Directory, tuple[str, ...]]:
@@ -137,9 +139,9 @@ def plan_mount(card: SdCard) -> MountPlan:
         copy = copies[0]
         directory, repairs = derive(copy.directory, copy.verdict, card.capacity)
         return MountPlan("recover", raw, on_card, printer, project, directory, copy,
-                         copy.generation, repairs)
+                         copy.generation, repairs, tuple(copies))
     return MountPlan("format", raw, on_card, printer, project, None, None,
-                     trailer_generation(on_card) or 0, ())
+                     trailer_generation(on_card) or 0, (), ())
 
 
 def extent_blocks(start: int, count: int, capacity: int) -> range | tuple[range, range]:

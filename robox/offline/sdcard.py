@@ -241,12 +241,15 @@ def put_stream(path: str | os.PathLike, source: BinaryIO, file_id: str, job: boo
                 "dropped": dropped}
 
 
-def fsck_image(path: str | os.PathLike) -> dict:
-    """Everything a person needs to judge a card image; never writes it."""
+def fsck_image(path: str | os.PathLike, deep: bool = False) -> dict:
+    """Everything a person needs to judge a card image; never writes it. It reads what
+    a mount reads: the whole card only when block 0 is not a valid directory (a mount
+    then looks for a recovery copy), or with `deep`."""
     with open_card(path) as card:
         plan = plan_mount(card)
         d = plan.on_card
-        copies = scan_copies(card)
+        copies = list(plan.copies) if plan.copies is not None else \
+            scan_copies(card) if deep else None
         in_use = plan.directory
         newest = copies[0] if copies else None
         report = {
@@ -287,6 +290,6 @@ def fsck_image(path: str | os.PathLike) -> dict:
                 and newest.directory.ring() == in_use.ring()
                 and all(newest.directory.slots[i] == in_use.slots[i] for i in in_use.ring()),
             },
-            "recovery_copies": len(copies),
+            "recovery_copies": None if copies is None else len(copies),
         }
         return report
