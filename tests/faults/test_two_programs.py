@@ -2,6 +2,7 @@
 broken by another, every refusal is one line naming the holder, and nothing that a
 command reported as stored is lost."""
 
+import json
 import os
 import random
 import signal
@@ -168,3 +169,38 @@ def test_the_host_catalogue_cut_at_every_step_of_its_write_is_old_or_new(tmp_pat
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path))
     assert set(catalogue.load("RBX01-0001")) == {"old", "new"}
 
+
+
+@pytest.mark.parametrize("chunks", [3, 57, 180])
+def test_a_client_killed_mid_upload_frees_the_port_for_the_next(tmp_path, env, chunks):
+    """send-job is killed with -9 after `chunks` chunks of its upload: the kernel drops its
+    port lock with it, and the next client resumes the upload to a whole file."""
+    state = tmp_path / "printer"
+    subprocess.run([*CLI, "sim", "serve", "--detach", "--state", str(state)], env=env,
+                   check=True, capture_output=True, timeout=120)
+    job = tmp_path / "part.gcode"
+    job.write_bytes(b"G28 X Y\n" + b"".join(f"G1 X{20 + n % 150} Y{20 + n % 100} F6000\n"
+                                            .encode() for n in range(10_000)))
+    try:  # -v: each command on stderr, so the kill lands after a known chunk
+        first = subprocess.Popen([*CLI, "-v", "--device", f"sim:{state}", "send-job",
+                                  str(job), "--raw", "--id", "part"], env=env,
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        seen = 0
+        while seen < chunks:
+            line = first.stderr.readline()
+            assert line, "the upload ended first"
+            seen += b"sent 0x91" in line
+        first.send_signal(signal.SIGKILL)
+        first.communicate(timeout=60)
+        again = subprocess.run([*CLI, "--device", f"sim:{state}", "send-job", str(job),
+                                "--raw", "--id", "part", "--resume", "--json"], env=env,
+                               capture_output=True, timeout=300)
+        assert again.returncode == 0, again.stderr.decode()
+        assert first.returncode == -signal.SIGKILL
+        summary = json.loads(again.stdout)
+        assert summary["resumed_from_byte"] >= chunks * 512 and not summary["already_stored"]
+    finally:
+        subprocess.run([*CLI, "sim", "stop", "--state", str(state)], env=env,
+                       capture_output=True, timeout=120)
+    expected = b"\r".join(line for line in job.read_bytes().split(b"\n") if line) + b"\r"
+    assert get_file(state / "sdcard.img", "part") == expected
