@@ -191,21 +191,28 @@ def robox_cli(*args: str, ok: tuple[int, ...] = (0,)) -> tuple[bytes, float, flo
     return child.stdout, kb / 1024, cpu
 
 
+def fresh_state(tmp: Path, loaded: bool) -> Path:
+    """A new virtual printer's state directory under `tmp`, with filament in feed E up
+    to the nozzle unless `loaded` is False."""
+    from robox.sim.printer import NOZZLE_MM, create_state, write_filament
+
+    state = tmp / "printer"
+    create_state(state)
+    if loaded:
+        write_filament(state, {"E": {"length_mm": 240_000.0, "tip_mm": NOZZLE_MM},
+                               "D": None})
+    return state
+
+
 def whole_path(path: Path, loaded: bool) -> tuple[float, float]:
     """robox-cli send-job --wait on a fresh state directory (filament in its feed unless
     `loaded` is False), in its own process; the peak resident memory in MB, and the
     rate in lines/s."""
-    from robox.sim.printer import NOZZLE_MM, create_state, write_filament
-
     with open(path, "rb") as f:
         lines = sum(1 for _ in f)
     plain = plain_loop_rate(path)
     with tempfile.TemporaryDirectory() as tmp:
-        state = Path(tmp) / "printer"
-        create_state(state)
-        if loaded:
-            write_filament(state, {"E": {"length_mm": 240_000.0, "tip_mm": NOZZLE_MM},
-                                   "D": None})
+        state = fresh_state(Path(tmp), loaded)
         start = time.perf_counter()
         out, peak, cpu = robox_cli("--device", f"sim-once:{state}", "send-job", str(path),
                                    "--wait", "--json")
@@ -246,16 +253,10 @@ def served_printer(state: Path, *options: str):
 
 def served_whole_path(path: Path, loaded: bool, in_process_rate: float) -> None:
     """`send-job --wait` to a printer served as fast as it can run."""
-    from robox.sim.printer import NOZZLE_MM, create_state, write_filament
-
     with open(path, "rb") as f:
         lines = sum(1 for _ in f)
     with tempfile.TemporaryDirectory() as tmp:
-        state = Path(tmp) / "printer"
-        create_state(state)
-        if loaded:
-            write_filament(state, {"E": {"length_mm": 240_000.0, "tip_mm": NOZZLE_MM},
-                                   "D": None})
+        state = fresh_state(Path(tmp), loaded)
         with served_printer(state) as pid:
             server0 = server_cpu(pid)
             start = time.perf_counter()

@@ -41,7 +41,18 @@ def permission_hint() -> str:
             f"{UDEV_RULE} (see README, 'Using a printer without root')")
 
 
-class UsbTransport:
+class _PortLock:
+    """The port's lock, taken before the port is opened (robox.locks.port_lock)."""
+
+    _lock: int | None = None
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)
+            self._lock = None
+
+
+class UsbTransport(_PortLock):
     """Bulk endpoints of the Robox's CDC data interface, through pyusb."""
 
     def __init__(self, device, lock: bool = False):
@@ -62,11 +73,6 @@ class UsbTransport:
         except BaseException:
             self._unlock()
             raise
-
-    def _unlock(self) -> None:
-        if self._lock is not None:
-            os.close(self._lock)
-            self._lock = None
 
     def _claim(self, device) -> None:
         usb = self._usb
@@ -127,7 +133,7 @@ class UsbTransport:
             self._unlock()
 
 
-class SerialTransport:
+class SerialTransport(_PortLock):
     """A serial port: a printer's /dev/ttyACM*, or a virtual printer's pty."""
 
     def __init__(self, path: str):
@@ -153,11 +159,6 @@ class SerialTransport:
             self.port.close()
             self._unlock()
             raise
-
-    def _unlock(self) -> None:
-        if self._lock is not None:
-            os.close(self._lock)
-            self._lock = None
 
     def write(self, data: bytes, timeout_ms: int = 5000) -> None:
         try:

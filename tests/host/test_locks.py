@@ -175,6 +175,12 @@ def serve_while(server: PtyServer, child: subprocess.Popen, wall_s: float = 300)
         server.serve_once(timeout=0.01)
 
 
+def send_job_wait(served: PtyServer, job, job_id: str) -> subprocess.Popen:
+    return subprocess.Popen([*CLI, "--device", f"serial:{served.path}", "send-job",
+                             str(job), "--raw", "--id", job_id, "--wait"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
 def test_send_job_wait_ends_on_a_pause_for_an_error_and_frees_the_port(served, tmp_path):
     """The printer pauses the job for an open nozzle thermistor: the wait ends with the
     error's name, what the user can do, and status 1, leaving the port to `abort`. (The
@@ -183,9 +189,7 @@ def test_send_job_wait_ends_on_a_pause_for_an_error_and_frees_the_port(served, t
     fw = served.printer.firmware
     job = tmp_path / "heat.gcode"
     job.write_bytes(b"M104 S200\nG28 X Y\n" + b"G1 X20 Y20 F600\nG1 X100 Y100\n" * 200)
-    send = subprocess.Popen([*CLI, "--device", f"serial:{served.path}", "send-job",
-                             str(job), "--raw", "--id", "heat", "--wait"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    send = send_job_wait(served, job, "heat")
     end = time.monotonic() + 120
     while not (fw.job.running and fw.file_system.send_file_report()[0] == bytes(16)) and \
             send.poll() is None and time.monotonic() < end:
@@ -211,9 +215,7 @@ def test_send_job_wait_says_once_that_a_user_pause_is_waited_out(served, tmp_pat
     # (a host on a serial port polls twice a second, and the served clock waits for
     # it: a few seconds of wall time)
     job.write_bytes(b"G28 X Y\n" + b"G1 X20 Y20 F3000\nG1 X100 Y100\n" * 12)
-    send = subprocess.Popen([*CLI, "--device", f"serial:{served.path}", "send-job",
-                             str(job), "--raw", "--id", "moves", "--wait"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    send = send_job_wait(served, job, "moves")
     end = time.monotonic() + 120
     while fw.job.line_number < 4 and time.monotonic() < end:
         served.serve_once(timeout=0.01)
