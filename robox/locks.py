@@ -213,10 +213,9 @@ def read_record(directory: Path) -> dict | None:
 
 
 def lock_port(fd: int, path: str) -> None:
-    """Take the lock on an open serial port, or say who has it."""
-    # (a port that cannot be locked is used unlocked, as by other hosts)
-    with contextlib.suppress(OSError):
-        take(fd, True, lambda: f"{path} is in use by {describe_pid(lock_holder(path))}")
+    """Take the lock on an open serial port, or say who has it (a port that cannot be
+    locked is used unlocked, as by other hosts)."""
+    lock_storage(fd, path, exclusive=True)
 
 
 def _shared_lock_dir() -> str:

@@ -335,8 +335,7 @@ def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool) -
             shown = max(shown, status.line)
             why = printer.paused_for(name, whole, status)
             if why == "catch-up":
-                printer.resume()
-                printer.catch_up_resumes += 1
+                printer.resume_catch_up()
             elif why:
                 raise PausedForError(
                     f"{name} is paused at line {status.line} for an error: "

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from robox.errors import ImageError
-from robox.fileio import open_input, read_chunks, replacing
+from robox.fileio import open_input, read_chunks, refuse_overwriting, replacing
 from robox.formats.protocol import JOB_LINE_LIMIT
 from robox.gcode.text import code_part, looks_like_gcode, split_lines
 from robox.gcode.translate import Detected, Options, Summary, detect, translate
@@ -61,17 +61,12 @@ def _write_job(lines: Iterable[bytes], target: str | os.PathLike) -> None:
             out.write(b"\r".join(batch) + b"\r")
 
 
-def _check_distinct(source: str | os.PathLike, target: str | os.PathLike) -> None:
-    if Path(target).resolve() == Path(source).resolve():
-        raise ImageError(f"{target}: the output would overwrite the input")
-
-
 def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
                   options: Options) -> Summary:
     """Translate `source` into the Robox job `target`. Streams; `target` appears only
     when the whole file translated."""
     with _lines(source) as (lines, detected):
-        _check_distinct(source, target)
+        refuse_overwriting(target, source)
         translated, summary = translate(lines, options, detected)
         _write_job(translated, target)
     return summary
@@ -80,7 +75,7 @@ def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
 def strip_file(source: str | os.PathLike, target: str | os.PathLike) -> None:
     """`source` as a job as it is: comments and blank lines dropped, CR line ends."""
     with _lines(source) as (lines, _):
-        _check_distinct(source, target)
+        refuse_overwriting(target, source)
         _write_job((code for code in map(code_part, lines) if code), target)
 
 

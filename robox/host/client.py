@@ -339,8 +339,7 @@ class Printer:
         if why is None:
             return False
         if why == "catch-up":
-            self.resume()
-            self.catch_up_resumes += 1
+            self.resume_catch_up()
             return True
         if notice is not None:
             reason = f"errors: {', '.join(error_names(why))}" if why else \
@@ -348,6 +347,11 @@ class Printer:
             notice(f"{name} is {status.pause} at line {status.line} ({reason}); "
                    "it is left paused")
         return False
+
+    def resume_catch_up(self) -> None:
+        """Resume a job paused because it caught up with its upload (and count it)."""
+        self.resume()
+        self.catch_up_resumes += 1
 
     def paused_for(self, name: str, catch_up_lines: CatchUpPoints, status: Status
                    ) -> str | int | None:
