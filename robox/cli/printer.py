@@ -23,7 +23,13 @@ from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT
 from robox.formats.protocol import error_names
 from robox.formats.sdcard import default_id, make_id
 from robox.host import catalogue
-from robox.host.client import DEFAULT_TIMEOUT_MS, EEPROMS, CatchUpPoints, catch_up_lines
+from robox.host.client import (
+    DEFAULT_TIMEOUT_MS,
+    EEPROMS,
+    CatchUpPoints,
+    FileTooLarge,
+    catch_up_lines,
+)
 from robox.host.devices import NoPrinter, list_printers, open_printer
 from robox.host.transport import Disconnected
 
@@ -239,6 +245,8 @@ def _upload(printer, file: str, job, file_id: str | None, resume: bool,
         raise UsageError(f"job id {name!r} is longer than 16 characters")
     make_id(name)  # refuses an empty or non-ASCII id
     job.refuse_long_lines()  # before the first chunk
+    unique = printer.unique_id()
+    _refuse_too_large(printer, unique, job.size)
     before = _reels(printer) if wait else {}
     started = time.monotonic()
     sim = getattr(printer, "virtual", None)
@@ -259,8 +267,14 @@ def _upload(printer, file: str, job, file_id: str | None, resume: bool,
                 raise RoboxError(f"the printer was disconnected after {done_bytes[0]} of "
                                  f"{job.size} bytes; run the same command with --resume to "
                                  "continue") from None
+            except FileTooLarge as exc:
+                with contextlib.suppress(OSError):
+                    catalogue.record_largest_file(unique, exc.largest)
+                raise RoboxError(f"{exc}: the job is {job.size} bytes and the card holds "
+                                 f"files of at most {exc.largest} bytes (a larger job is "
+                                 "refused before upload from now on)") from None
         with contextlib.suppress(OSError):
-            catalogue.record(printer.unique_id(), name, job.size, job.lines, True, job.sha1)
+            catalogue.record(unique, name, job.size, job.lines, True, job.sha1)
         summary = {"id": name, "bytes": job.size, "lines": job.lines,
                    "resumed_from_byte": job.size if sent.already_stored else
                    sent.first_chunk * 512, "restarted": sent.restarted,
@@ -278,6 +292,19 @@ def _upload(printer, file: str, job, file_id: str | None, resume: bool,
         summary["errors"] = error_names(printer.errors())
         summary["catch_up_resumes"] = printer.catch_up_resumes
     return summary
+
+
+def _refuse_too_large(printer, unique: str, size: int) -> None:
+    """Refuse, before its first chunk, a job larger than the printer's card can hold:
+    known from a virtual printer's card image, or from an earlier upload the printer
+    refused as too large (`robox.host.catalogue`)."""
+    largest = printer.largest_file
+    if largest is None:
+        with contextlib.suppress(OSError):
+            largest = catalogue.largest_file(unique)
+    if largest is not None and size > largest:
+        raise RoboxError(f"the job is {size} bytes; the printer's card holds files of at "
+                         f"most {largest} bytes ({largest / 2**20:.1f} MiB): nothing sent")
 
 
 def printer_options(printer, filament_diameter: float | None, nozzle: int | None,

@@ -111,6 +111,16 @@ class PrinterError(RoboxError):
         super().__init__(f"{doing}: the printer reports {', '.join(error_names(bits))}")
 
 
+class FileTooLarge(PrinterError):
+    """The printer refused an upload as larger than its card: it had stored `largest`
+    bytes of it, the most a file on that card can have (the card does not report its
+    size; this is how a host learns it)."""
+
+    def __init__(self, bits: int, doing: str, largest: int):
+        self.largest = largest
+        super().__init__(bits, doing)
+
+
 class ProtocolError(RoboxError):
     """The printer's reply was not the report the command asks for."""
 
@@ -182,6 +192,9 @@ class Printer:
         self.idle = idle or time.sleep
         self.commands_sent = 0
         self.catch_up_resumes = 0  # pauses of a job that caught up with its upload, resumed
+        # the most bytes a file on the card can have, where the host can know it (a
+        # virtual printer's card image); a printer does not report its card's size
+        self.largest_file: int | None = None
         self.known_errors = self.errors()
 
     # ------------------------------------------------------------ wire
@@ -429,7 +442,8 @@ class Printer:
             if len(block) < CHUNK:
                 tail = block
                 break
-            self.ack(b"\x91" + f"{sequence:08x}".encode() + block, f"chunk {sequence}")
+            self._store(b"\x91" + f"{sequence:08x}".encode() + block, f"chunk {sequence}",
+                        sequence * CHUNK)
             lines += block.count(b"\r")
             caught_up_at.add(lines)
             if progress:
@@ -443,7 +457,8 @@ class Printer:
             elif watch and started and sequence % CATCH_UP_CHECK_CHUNKS == 0 and \
                     not (held and held()):
                 self.resume_if_caught_up(name, caught_up_at, tell)
-        self.ack(b"\x92" + f"{chunks:08x}{len(tail):04x}".encode() + tail, f"end {name}")
+        self._store(b"\x92" + f"{chunks:08x}{len(tail):04x}".encode() + tail, f"end {name}",
+                    chunks * CHUNK)
         if progress:
             progress(size, size)
         if not started:
@@ -455,6 +470,16 @@ class Printer:
             # a pause made while the last chunks were on their way stays until resumed
             self.resume_if_caught_up(name, caught_up_at, tell)
         return Sent(first, restarted, start)
+
+    def _store(self, frame: bytes, doing: str, stored: int) -> None:
+        """Acknowledge a chunk (or the end) of an upload of which `stored` bytes are on
+        the card before it: the card is full when that chunk is refused as too large."""
+        try:
+            self.ack(frame, doing)
+        except PrinterError as exc:
+            if exc.bits >> ErrorBit.FILE_TOO_LARGE & 1:
+                raise FileTooLarge(exc.bits, doing, stored) from None
+            raise
 
     # ---------------------------------------------------- update firmware
     def update_firmware(self, image: bytes, file_id: str = "robox_firmware",

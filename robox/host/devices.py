@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from robox.errors import RoboxError, UsageError
+from robox.formats.sdcard import BLOCK_SIZE
 from robox.host.client import DEFAULT_TIMEOUT_MS, Printer
 from robox.host.transport import (
     PRODUCT_ID,
@@ -177,6 +178,7 @@ def _sim(directory: Path, timeout_ms: int = DEFAULT_TIMEOUT_MS) -> Iterator[Prin
 
         printer = Printer(UsbTransport(device), timeout_ms, idle=idle)
         printer.virtual = virtual
+        printer.largest_file = largest_file(virtual.hw.card.capacity)
         yield printer
     finally:
         # the in-process printer is switched off after each command: a cooled head is
@@ -195,7 +197,17 @@ def _served(directory: Path, timeout_ms: int, announce=None, take_over: bool = F
     printer = _connect(SerialTransport(record["pty"]), timeout_ms,
                        served_idle(record.get("speed")), take_over)
     printer.served = record
+    with contextlib.suppress(OSError):  # its card's size, from its image's
+        printer.largest_file = largest_file(
+            (directory / "sdcard.img").stat().st_size // 1024 * 2)
     return printer
+
+
+def largest_file(capacity_blocks: int) -> int:
+    """The most bytes a file on a card of `capacity_blocks` can have: a file may take
+    every block but the directory's and one (the write that would reach its own first
+    block is refused as too large)."""
+    return max(0, capacity_blocks - 2) * BLOCK_SIZE
 
 
 def served_idle(speed: float | None) -> Callable[[float], None]:

@@ -11,7 +11,7 @@ from robox.cli import sdcard as sdcard_cli
 from robox.errors import ImageError
 from robox.formats import firmware as fw
 from robox.formats.protocol import JOB_LINE_LIMIT
-from robox.offline.sdcard import format_image, list_image
+from robox.offline.sdcard import format_image, list_image, put_file
 from tests.cli.test_firmware_cli import firmware_bytes
 
 
@@ -109,3 +109,72 @@ def test_fsck_of_a_valid_card_reads_what_a_mount_reads(tmp_path, monkeypatch):
     text = run("sdcard", "fsck", card).output
     assert "recovery copy: not looked for (block 0 is valid, so a mount reads none; " \
         "--deep scans the card)" in text
+
+
+CARD_BLOCKS = 2048  # a 1 MiB card: the largest file it holds is every block but two
+LARGEST = (CARD_BLOCKS - 2) * 512
+
+
+def small_card_printer(tmp_path):
+    state = tmp_path / "printer"
+    state.mkdir()
+    format_image(state / "sdcard.img", CARD_BLOCKS)
+    put_file(state / "sdcard.img", b"G28\r", "kept", True)
+    return state
+
+
+def dwell_job(path, size):
+    """A job of exactly `size` bytes (lines "G4 P0", the last one padded)."""
+    lines, rest = divmod(size, 6)
+    path.write_bytes(b"G4 P0\n" * (lines - 1) + b"G4 P0" + b"0" * rest + b"\n")
+    return path
+
+
+def test_send_job_refuses_a_job_larger_than_a_virtual_printers_card_before_sending(tmp_path):
+    state = small_card_printer(tmp_path)
+    job = dwell_job(tmp_path / "big.gcode", LARGEST + 1)
+    before = list_image(state / "sdcard.img")["files"]
+    assert [f["id"] for f in before] == ["kept"]  # an upload too large would drop it
+    result = run("--device", f"sim-once:{state}", "send-job", job, "--raw", "--id", "big")
+    assert result.exit_code == 1
+    assert result.output.splitlines()[-1] == (
+        f"robox-cli: error: the job is {LARGEST + 1} bytes; the printer's card holds files "
+        f"of at most {LARGEST} bytes (1.0 MiB): nothing sent")
+    assert list_image(state / "sdcard.img")["files"] == before
+
+
+def test_send_job_takes_a_job_the_size_of_the_card(tmp_path):
+    state = small_card_printer(tmp_path)
+    job = dwell_job(tmp_path / "full.gcode", LARGEST)
+    result = run("--device", f"sim-once:{state}", "send-job", job, "--raw", "--id", "full")
+    assert result.exit_code == 0, result.output
+    files = list_image(state / "sdcard.img")["files"]
+    assert [(f["id"], f["length"]) for f in files] == [("full", LARGEST)]
+
+
+def test_a_printer_that_refused_a_job_as_too_large_has_larger_ones_refused_before_sending(
+        tmp_path):
+    """A printer's card size is not on the wire: reached as a real printer is (a serial
+    port), the host learns it from the printer's refusal, and keeps it."""
+    from tests.sim.serving import served
+
+    state = small_card_printer(tmp_path)
+    big = dwell_job(tmp_path / "big.gcode", LARGEST + 2048)
+    small = dwell_job(tmp_path / "small.gcode", 3000)
+    with served(state) as pty:
+        device = ("--device", f"serial:{pty}")
+        first = run(*device, "send-job", big, "--raw", "--id", "big")
+        assert first.exit_code == 1
+        assert first.output.splitlines()[-1] == (
+            f"robox-cli: error: chunk {LARGEST // 512}: the printer reports file too large "
+            f"for the SD card: the job is {LARGEST + 2048} bytes and the card holds files of "
+            f"at most {LARGEST} bytes (a larger job is refused before upload from now on)")
+        assert run(*device, "errors", "--clear").exit_code == 0
+        assert run(*device, "send-job", small, "--raw", "--id", "small").exit_code == 0
+        again = run(*device, "send-job", big, "--raw", "--id", "big")
+        assert again.exit_code == 1
+        assert again.output.splitlines()[-1] == (
+            f"robox-cli: error: the job is {LARGEST + 2048} bytes; the printer's card holds "
+            f"files of at most {LARGEST} bytes (1.0 MiB): nothing sent")
+        listed = json.loads(run(*device, "files", "--json").output)
+    assert [f["id"] for f in listed] == ["small"]
