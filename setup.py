@@ -3,38 +3,40 @@ build has them); the rest of the package's metadata is in pyproject.toml."""
 
 import os
 
+from robox_build import stage  # buildsys/, the build backend's own directory
 from setuptools import setup
+from setuptools.command.build_ext import build_ext
 
 # The firmware model's per-pass work: the loop, the step interrupt and block queue,
 # segmenting and positions, G-code, commands, EEPROMs, heaters, C arithmetic and line
 # parsing, the machine the steps move, the EEPROMs' bus and chips, the USB link, the
 # clock, the filament float format; and the host's G-code translator and valve stage.
 NATIVE_MODULES = [
-    "robox/firmware/carith.py",
-    "robox/firmware/cline.py",
-    "robox/firmware/motion.py",
-    "robox/firmware/position.py",
-    "robox/firmware/heaters.py",
-    "robox/firmware/main.py",
-    "robox/firmware/gcode.py",
-    "robox/firmware/command.py",
-    "robox/firmware/eeprom.py",
-    "robox/firmware/parameters.py",
-    "robox/firmware/error_flags.py",
-    "robox/firmware/user_interface.py",
-    "robox/hardware/machine.py",
-    "robox/hardware/deposition.py",
-    "robox/hardware/eeprom_bus.py",
-    "robox/hardware/clock.py",
-    "robox/hardware/usb.py",
-    "robox/hardware/eeprom.py",
-    "robox/hardware/faults.py",
-    "robox/hardware/sdcard.py",
-    "robox/formats/float8.py",
-    "robox/gcode/translate.py",
-    "robox/gcode/valve.py",
-    "robox/gcode/text.py",
-    "robox/packed.py",
+    "src/robox/firmware/carith.py",
+    "src/robox/firmware/cline.py",
+    "src/robox/firmware/motion.py",
+    "src/robox/firmware/position.py",
+    "src/robox/firmware/heaters.py",
+    "src/robox/firmware/main.py",
+    "src/robox/firmware/gcode.py",
+    "src/robox/firmware/command.py",
+    "src/robox/firmware/eeprom.py",
+    "src/robox/firmware/parameters.py",
+    "src/robox/firmware/error_flags.py",
+    "src/robox/firmware/user_interface.py",
+    "src/robox/hardware/machine.py",
+    "src/robox/hardware/deposition.py",
+    "src/robox/hardware/eeprom_bus.py",
+    "src/robox/hardware/clock.py",
+    "src/robox/hardware/usb.py",
+    "src/robox/hardware/eeprom.py",
+    "src/robox/hardware/faults.py",
+    "src/robox/hardware/sdcard.py",
+    "src/robox/formats/float8.py",
+    "src/robox/gcode/translate.py",
+    "src/robox/gcode/valve.py",
+    "src/robox/gcode/text.py",
+    "src/robox/packed.py",
 ]
 
 
@@ -47,14 +49,24 @@ def ext_modules():
     from mypyc.build import mypycify
 
     # the modules they import are type-checked only as far as the compiled ones need
-    # COMPILED (robox/packed.py) always true: the compiled modules use librt's vectors
+    # COMPILED (src/robox/packed.py) always true: the compiled modules use librt's vectors
     options = ["--ignore-missing-imports", "--follow-imports=silent", "--always-true=COMPILED",
                "--cache-dir", os.path.join("build", "native", "mypy-cache")]
-    return mypycify(options + NATIVE_MODULES, opt_level="3",
-                    target_dir=os.path.join("build", "native", "c"))
+    with stage(f"compiled core 1/2: type-checking {len(NATIVE_MODULES)} modules and "
+               "writing their C"):
+        return mypycify(options + NATIVE_MODULES, opt_level="3",
+                        target_dir=os.path.join("build", "native", "c"))
+
+
+class BuildExt(build_ext):
+    def run(self):
+        if not self.extensions:
+            return super().run()
+        with stage("compiled core 2/2: compiling the C (the long part)"):
+            return super().run()
 
 
 # a build directory of its own for each kind: a pure wheel never packs an extension that
 # a compiled build left in build/lib
-setup(ext_modules=ext_modules(),
+setup(ext_modules=ext_modules(), cmdclass={"build_ext": BuildExt},
       options={"build": {"build_base": os.path.join("build", "native" if NATIVE else "pure")}})

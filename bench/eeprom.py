@@ -6,18 +6,16 @@ One loop pass is taken as 1 ms of simulated time; the chips have a 5 ms
 internal write cycle. Prints figures; asserts nothing.
 """
 
-import sys
 import time
-from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from robox.firmware.eeprom import Eeproms, Status
 from robox.firmware.error_flags import ErrorFlags
 from robox.formats import eeprom as fmt
 from robox.formats.eeprom import EepromIndex
 from robox.hardware.clock import SimClock
-from robox.hardware.eeprom import EepromBus, EepromChip
+from robox.hardware.eeprom import EepromChip
+from robox.hardware.eeprom_bus import EepromBus
+from robox.native import build
 
 PASS_S = 0.001
 
@@ -96,5 +94,6 @@ def steps_per_second() -> None:
 
 
 if __name__ == "__main__":
+    print(f"measuring {build()}")
     propagate_one_byte()
     steps_per_second()

@@ -23,6 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from robox.native import build  # noqa: E402
 from tests.faults import campaign, printer_campaign  # noqa: E402
 
 
@@ -41,6 +42,7 @@ def measure(label: str, record, cases, check, limit: int | None):
 
 
 def main() -> None:
+    print(f"measuring {build()}")
     quick = "--quick" in sys.argv
     card_media = {}
 

@@ -18,6 +18,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from robox.formats import firmware as fw
+from robox.native import build
 
 OFFSET = 0xBC
 
@@ -43,6 +44,7 @@ def best(runs: int, data: bytes, summer) -> float:
 
 
 def main() -> None:
+    print(f"measuring {build()}")
     quick = "--quick" in sys.argv
     rng = np.random.default_rng(776)
     cases = [("128 KiB image", 128 * 1024, 20, 3), ("64 MiB buffer", 64 * 1024 * 1024, 3, 1)]

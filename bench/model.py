@@ -53,7 +53,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from robox.hardware.machine import NOZZLE_MM, E  # noqa: E402
-from robox.native import describe  # noqa: E402
+from robox.native import build, describe  # noqa: E402
 from robox.sim.printer import VirtualPrinter  # noqa: E402
 from tests.firmware.wire import Wire, hexn, ident  # noqa: E402
 
@@ -352,6 +352,7 @@ def host_text(raw: bytes) -> bytes:
 
 
 def main() -> None:
+    print(f"measuring {build()}")
     quick = "--quick" in sys.argv
     path = sliced_gcode(quick)
     job = host_text(path.read_bytes())

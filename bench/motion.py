@@ -22,6 +22,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 from model import host_text, sliced_gcode  # noqa: E402
 
 from robox.hardware.machine import E  # noqa: E402
+from robox.native import build  # noqa: E402
 from robox.sim.printer import VirtualPrinter  # noqa: E402
 from tests.firmware.test_motion import MACROS  # noqa: E402
 from tests.firmware.wire import Wire, job_text  # noqa: E402
@@ -51,6 +52,7 @@ def run_job(name: str, text: bytes) -> tuple[int, float, float, bool]:
 
 
 def main() -> None:
+    print(f"measuring {build()}")
     quick = "--quick" in sys.argv
     jobs = [(name, job_text(lines)) for name, lines in MACROS.items()]
     tower = sliced_gcode(quick)

@@ -15,6 +15,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from robox.native import build  # noqa: E402
 from robox.offline import sdcard as images  # noqa: E402
 from tests.faults import campaign  # noqa: E402
 
@@ -69,6 +70,7 @@ def bench_campaign(limit: int | None) -> None:
 
 
 def main() -> None:
+    print(f"measuring {build()}")
     quick = "--quick" in sys.argv
     with tempfile.TemporaryDirectory() as work:
         bench_put(Path(work), 1 if quick else 3)

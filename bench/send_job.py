@@ -17,6 +17,7 @@ import usb.core
 from robox.gcode import prepare_job
 from robox.host.client import Printer
 from robox.host.transport import UsbTransport
+from robox.native import build
 from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
 from tests.firmware.wire import circle_job
@@ -25,6 +26,7 @@ JOB_LINES = 120_000
 
 
 def main() -> None:
+    print(f"measuring {build()}")
     job = prepare_job(circle_job(JOB_LINES, heat=False))
     virtual = VirtualPrinter(card_blocks=4 * 65536)
     virtual.settle()

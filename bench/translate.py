@@ -25,9 +25,11 @@ sys.path.insert(0, str(ROOT / "bench"))
 from model import plain_loop_rate, robox_cli, sliced_gcode  # noqa: E402
 
 from robox.gcode import Options, roboxise_file  # noqa: E402
+from robox.native import build  # noqa: E402
 
 
 def main() -> None:
+    print(f"measuring {build()}")
     path = sliced_gcode("--quick" in sys.argv, "tower-user", ())  # E in mm, absolute
     size = path.stat().st_size
     rate = plain_loop_rate(path)

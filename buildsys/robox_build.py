@@ -10,6 +10,10 @@ tells which one runs. `ROBOX_NATIVE` in the environment chooses:
 - `1`: compiled or nothing (a failure to compile fails the build);
 - `0`: pure Python.
 
+A compiled build takes minutes (about 3 of CPU on a current x86-64 core). pip's `-q`
+hides what a backend prints, so its stages and a line every 30 s go to the terminal
+(/dev/tty) where there is one, else to stderr (`pip install -v` shows them).
+
 An editable install (`pip install -e .`) is always pure Python: compiled modules would
 shadow later edits of the sources. Each kind of build keeps its own build directory
 (build/native, build/pure), so a pure wheel never picks up an extension a compiled
@@ -24,11 +28,13 @@ import shlex
 import shutil
 import sys
 import sysconfig
+import threading
+import time
 
 from setuptools import build_meta as _setuptools
 from setuptools.build_meta import *  # noqa: F403  (the standard hooks, unchanged)
 
-MYPYC = "mypy[mypyc]>=2.4"  # librt.vecs (robox/packed.py)
+MYPYC = "mypy[mypyc]>=2.4"  # librt.vecs (src/robox/packed.py)
 CHOICE = "ROBOX_NATIVE"
 BUILD = "ROBOX_BUILD_KIND"  # what setup.py builds: "native" or "pure" (set here only)
 
@@ -42,6 +48,50 @@ def _choice() -> str:
 
 def _say(text: str) -> None:
     print(f"robox: {text}", file=sys.stderr)
+
+
+def _terminal():
+    """Where progress goes: the terminal, which pip's -q does not silence, else stderr."""
+    try:
+        return open("/dev/tty", "w", encoding="utf-8")
+    except OSError:
+        return None
+
+
+def _minutes(seconds: float) -> str:
+    return f"{seconds / 60:.0f} min {seconds % 60:.0f} s" if seconds >= 60 else \
+        f"{seconds:.0f} s"
+
+
+@contextlib.contextmanager
+def stage(text: str, tick_s: float = 30.0):
+    """Say that a long build step began, that it still runs every `tick_s` and when it
+    ended (the build's own process: a thread here waits, it does no work)."""
+    tty = _terminal()
+    out = tty or sys.stderr
+    started = time.monotonic()
+
+    def say(line: str) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            print(f"robox: {line}", file=out, flush=True)
+
+    say(f"{text} ...")
+    done = threading.Event()
+
+    def ticking() -> None:
+        while not done.wait(tick_s):
+            say(f"{text}: {_minutes(time.monotonic() - started)} so far")
+
+    ticker = threading.Thread(target=ticking, daemon=True)
+    ticker.start()
+    try:
+        yield
+    finally:
+        done.set()
+        ticker.join()
+        say(f"{text}: done in {_minutes(time.monotonic() - started)}")
+        if tty is not None:
+            tty.close()
 
 
 def compiler() -> str | None:

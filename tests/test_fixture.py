@@ -26,11 +26,12 @@ def test_mkfixture_regenerates_the_fixture_byte_for_byte(tmp_path):
 
 
 def test_the_bundled_card_and_example_job_are_the_generated_ones(tmp_path):
-    assert (ROOT / "robox" / "data" / "sdcard.img").read_bytes() == FIXTURE.read_bytes()
+    assert (ROOT / "src" / "robox" / "data" / "sdcard.img").read_bytes() == FIXTURE.read_bytes()
     import importlib.machinery
     import importlib.util
     loader = importlib.machinery.SourceFileLoader("mkfixture", str(ROOT / "tools" / "mkfixture"))
     mkfixture = importlib.util.module_from_spec(importlib.util.spec_from_loader("mkfixture",
                                                                                  loader))
     loader.exec_module(mkfixture)
-    assert (ROOT / "robox" / "data" / "example.gcode").read_text() == mkfixture.example_job()
+    example = ROOT / "src" / "robox" / "data" / "example.gcode"
+    assert example.read_text() == mkfixture.example_job()

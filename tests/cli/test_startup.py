@@ -1,5 +1,5 @@
 """robox-cli starts light: a command's module is imported only when the command runs,
-and `--help` lists them all from a table (robox/cli/__init__.py)."""
+and `--help` lists them all from a table (src/robox/cli/__init__.py)."""
 
 import subprocess
 import sys

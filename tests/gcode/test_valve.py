@@ -1,4 +1,4 @@
-"""The needle valve as AutoMaker drove it (robox/gcode/valve.py), through the translator.
+"""The needle valve as AutoMaker drove it (src/robox/gcode/valve.py), through the translator.
 
 Each expectation is worked out here from the slicer's numbers: 1.75 mm filament, the
 RBX01-SM's ejection volumes (0.3 mm3 on nozzle 0, 0.6 on nozzle 1).

@@ -2,7 +2,6 @@
 (the hardware's code path) and through a real pty."""
 
 import json
-from pathlib import Path
 
 import pytest
 import usb.core
@@ -18,10 +17,8 @@ from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
 from tests.cli.test_sdcard_cli import one_line_error
 from tests.firmware.wire import circle_job
+from tests.installed import EXAMPLE
 from tests.sim import serving
-
-ROOT = Path(__file__).resolve().parents[2]
-EXAMPLE = ROOT / "robox" / "data" / "example.gcode"
 
 
 def run(*args):

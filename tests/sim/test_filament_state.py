@@ -1,5 +1,5 @@
 """Filament in a virtual printer's feeds: `robox-cli sim load`, kept in the state
-directory and taken by the printer it switches on (robox/sim/printer.py)."""
+directory and taken by the printer it switches on (src/robox/sim/printer.py)."""
 
 import json
 import math

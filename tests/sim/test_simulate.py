@@ -12,9 +12,8 @@ from click.testing import CliRunner
 from robox.cli import cli
 from robox.gcode import code_part, split_lines, words
 from tests.gcode.test_translate import slice_small
+from tests.installed import EXAMPLE
 
-ROOT = Path(__file__).resolve().parents[2]
-EXAMPLE = ROOT / "robox" / "data" / "example.gcode"
 AREA = math.pi * 1.75 ** 2 / 4
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.unit.test_compiled_build import SOURCES, copy_project
+from tests.unit.test_pure_build import SOURCES, copy_project
 
 
 def _build(tmp_path: Path, **env_changes: str | None) -> tuple[subprocess.CompletedProcess,

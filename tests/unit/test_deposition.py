@@ -1,4 +1,4 @@
-"""Where the plastic lands (robox/hardware/deposition.py), on the real machine model.
+"""Where the plastic lands (src/robox/hardware/deposition.py), on the real machine model.
 
 Volumes are worked out here from the machine's own constants: 747 E microsteps per mm
 of 1.75 mm filament, 2,500 B microsteps per valve unit, the RBX01-SM's 0.3 mm3 stroke on

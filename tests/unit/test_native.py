@@ -17,7 +17,8 @@ def setup_modules() -> list[str]:
     tree = ast.parse((ROOT / "setup.py").read_text())
     for node in tree.body:
         if isinstance(node, ast.Assign) and node.targets[0].id == "NATIVE_MODULES":
-            return [p.removesuffix(".py").replace("/", ".") for p in ast.literal_eval(node.value)]
+            return [p.removeprefix("src/").removesuffix(".py").replace("/", ".")
+                    for p in ast.literal_eval(node.value)]
     raise AssertionError("setup.py has no NATIVE_MODULES")
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import errno
 import os
 import time
+from pathlib import Path
 
 from robox.errors import RoboxError
 from robox.locks import lock_port, port_lock
@@ -17,7 +18,6 @@ from robox.locks import lock_port, port_lock
 VENDOR_ID = 0x16D0
 PRODUCT_ID = 0x081B
 DATA_INTERFACE = 1
-UDEV_RULE = "robox/data/60-robox.rules"
 
 
 class TransportError(RoboxError):
@@ -37,8 +37,9 @@ class PermissionDenied(TransportError):
 
 
 def permission_hint() -> str:
+    rule = Path(__file__).resolve().parent.parent / "data" / "60-robox.rules"
     return ("permission denied opening the printer: install the udev rule shipped as "
-            f"{UDEV_RULE} (see README, 'Using a printer without root')")
+            f"{rule} (see README, 'Using a printer without root')")
 
 
 class _PortLock:

@@ -25,7 +25,7 @@ valve_option = click.option(
 ejection_option = click.option(
     "--ejection", metavar="MM3[,MM3]",
     help="The needle's ejection volume per nozzle (default: the head's, e.g. 0.3,0.6 "
-         "on RBX01-SM; see robox/formats/heads.py).")
+         "on RBX01-SM).")
 
 
 def parse_ejection(text: str | None) -> tuple[float, ...] | None:

@@ -53,3 +53,17 @@ def compiled_modules() -> list[str]:
 def describe() -> str:
     n = len(compiled_modules())
     return "pure Python" if n == 0 else f"compiled core ({n} of {len(MODULES)} modules)"
+
+
+def build() -> str:
+    """Which robox this is: version, build, and where it was imported from (for the
+    figures a benchmark prints)."""
+    import importlib.metadata
+    from pathlib import Path
+
+    try:
+        version = importlib.metadata.version("robox")
+    except importlib.metadata.PackageNotFoundError:
+        version = "(not installed)"
+    where = Path(importlib.import_module("robox").__file__ or "?").parent
+    return f"robox {version}, {describe()}, from {where}"
