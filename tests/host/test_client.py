@@ -97,6 +97,22 @@ def test_eeprom_round_trips(state):
     one_line_error(sim(state, "write-eeprom", "reel0", "nope=1"), 2, "no reel EEPROM field")
 
 
+def test_eeprom_floats_read_back_as_written_online_and_offline(state):
+    """2.85 is stored as "2.850000", which the printer reads as the float32
+    2.8499999046325684: a user reads back 2.85, in text and in JSON."""
+    assert sim(state, "write-eeprom", "reel0", "filament_diameter=2.85",
+               "filament_multiplier=0.1").exit_code == 0
+    fields = json.loads(sim(state, "read-eeprom", "reel0", "--json").output)
+    assert (fields["filament_diameter"], fields["filament_multiplier"]) == (2.85, 0.1)
+    text = sim(state, "read-eeprom", "reel0").output.splitlines()
+    assert [line.split() for line in text if line.startswith("filament_d")] == \
+        [["filament_diameter", "2.85"]]
+    dump = json.loads(run("eeprom", "show", str(state / "reel0.eeprom"), "--json").output)
+    assert dump["fields"]["filament_diameter"] == {"value": 2.85, "raw": "2.850000"}
+    shown = run("eeprom", "show", str(state / "reel0.eeprom")).output.splitlines()
+    assert ["filament_diameter", "2.85"] in [line.split() for line in shown]
+
+
 def test_update_firmware_good_and_bad(state, tmp_path):
     good = tmp_path / "good.bin"
     good.write_bytes(images.firmware_image("r800new", size=16384, seed=8))
@@ -110,6 +126,37 @@ def test_update_firmware_good_and_bad(state, tmp_path):
     bad.write_bytes(bytes(data))
     one_line_error(sim(state, "update-firmware", str(bad)), 1, "would be refused")
     assert "r800new" in sim(state, "gcode", "M115").output
+
+
+def released_image(revision: bytes, size: int = 20480) -> bytes:
+    """An image laid out as a released one is: code (here, bytes), the M115 reply as a
+    C string literal among its constants, and the word at 0xBC that brings the 32-bit
+    word sum to zero (computed here, not by the package)."""
+    import random
+    import struct
+
+    body = bytearray(random.Random(779).randbytes(size))
+    literal = b"FIRMWARE_NAME: robox " + revision + b"\r\n\0"
+    body[0x3100 : 0x3100 + len(literal)] = literal
+    body[0xBC:0xC0] = bytes(4)
+    total = sum(struct.unpack(f"<{size // 4}I", bytes(body))) & 0xFFFFFFFF
+    body[0xBC:0xC0] = struct.pack("<I", (-total) & 0xFFFFFFFF)
+    return bytes(body)
+
+
+def test_after_an_update_the_printer_reports_the_revision_the_image_declares(state,
+                                                                              tmp_path):
+    image = tmp_path / "robox_r779.bin"
+    image.write_bytes(released_image(b"r779"))
+    result = sim(state, "update-firmware", str(image), "--json")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output) == {"before": "r776sim", "after": "r779"}
+    assert sim(state, "gcode", "M115").output.splitlines()[0] == "FIRMWARE_NAME: robox r779"
+    # 0xb4, as the printer sends it: the revision NUL padded to 8 bytes
+    from robox.host.devices import open_printer
+
+    with open_printer(f"sim-once:{state}") as printer:
+        assert printer.transact(b"\xb4") == b"\xe4r779\0\0\0\0"
 
 
 @pytest.mark.parametrize("args,status,words", [

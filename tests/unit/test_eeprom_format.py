@@ -175,3 +175,34 @@ def test_kind_is_guessed_from_a_head_type_code():
     assert fmt.guess_kind(b"RBX01-SM" + bytes(184)) == "head"
     assert fmt.guess_kind(b"RX123" + bytes(187)) == "head"
     assert fmt.guess_kind(b"PLA" + bytes(189)) == "reel"
+
+
+def _f32(value: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", value))[0]
+
+
+@pytest.mark.parametrize("written, stored", [
+    ("2.85", b"2.850000"), ("1.75", b"1.750000"), ("0.1", b"0.100000"),
+    ("240000", b"240000.0"), ("-0.05", b"-0.05000"), ("123.4567", b"123.4567"),
+    ("0", b"0.000000")])
+def test_a_float_field_is_shown_as_it_was_written(written, stored):
+    data = bytearray(192)
+    fmt.set_field(data, "reel", "filament_diameter", written)
+    f = fmt.field("reel", "filament_diameter")
+    assert f.raw(data) == stored  # the first 8 characters of C's %f
+    read = fmt.fields_of("reel", bytes(data))["filament_diameter"]
+    assert read == _f32(float(written))  # the printer's float32 ...
+    shown = fmt.shown_fields("reel", bytes(data))["filament_diameter"]
+    assert shown == float(written) and repr(shown) == repr(float(written))  # ... shown as written
+
+
+@given(st.integers(0, 2**32 - 1))
+def test_shortest_is_the_fewest_digits_that_give_the_same_float32(bits):
+    value = struct.unpack("<f", struct.pack("<I", bits))[0]
+    if not math.isfinite(value) or value == 0.0:
+        return
+    shown = float8.shortest(value)
+    assert _f32(shown) == value
+    digits = len(f"{shown:.9e}".split("e")[0].replace("-", "").replace(".", "").rstrip("0"))
+    if digits > 1:  # one digit fewer gives another float32
+        assert _f32(float(f"{value:.{digits - 1}g}")) != value

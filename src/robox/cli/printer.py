@@ -191,11 +191,14 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
     quiet = as_json or not sys.stderr.isatty()
     with device(ctx) as printer:
         options = None
-        if not raw and detected.from_slicer:
+        if not raw and (detected.from_slicer or macros is not None):  # (macros expanded)
             options = printer_options(printer, filament_diameter, nozzle, macros, valve,
                                       volumes)
         with job_file(file, options) as job:
-            if job.translation is not None and not as_json:
+            if job.translation is not None and job.translation.passthrough and not as_json:
+                click.echo(f"a Robox job: sent as it is, {job.translation.macros} macro "
+                           f"line(s) expanded from {macros}", err=True)
+            elif job.translation is not None and not as_json:
                 t = job.translation
                 click.echo(f"translated {t.slicer} G-code ({t.e_mode} E) for a {t.head} head: "
                            f"{t.volume_mm3['E'] + t.volume_mm3['D']:.0f} mm3, "
@@ -527,7 +530,7 @@ def errors_cmd(ctx, clear: bool, as_json: bool) -> None:
 def read_eeprom_cmd(ctx, which: str, as_json: bool) -> None:
     """Read a head or reel EEPROM and show its fields."""
     with device(ctx) as printer:
-        fields = printer.read_eeprom_fields(which)
+        fields = printer.read_eeprom_fields(which, shown=True)
     if as_json:
         emit_json(fields)
     else:
@@ -595,7 +598,7 @@ def update_firmware_cmd(ctx, bin_file: str, as_json: bool) -> None:
                 image, progress=lambda done, total: bar.update(done - bar.pos))
         after = after_printer.revision()
     declared = image_revision(image)
-    if declared is not None and after != declared:
+    if declared is not None and after != declared[:8]:  # (0xb4 holds 8 characters)
         raise RoboxError(f"the printer came back with firmware {after}, but the image is "
                          f"{declared}: the update did not take")
     if as_json:

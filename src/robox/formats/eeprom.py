@@ -172,7 +172,15 @@ def set_field(data: bytearray, kind: str, name: str, value: str | float) -> None
 
 
 def fields_of(kind: str, data: bytes) -> dict:
+    """Every field's value as the printer reads it (floats at float32 precision)."""
     return {f.name: f.read(data) for f in FIELDS[kind].values()}
+
+
+def shown_fields(kind: str, data: bytes) -> dict:
+    """Every field's value as a person wrote it: floats as the shortest decimal that
+    is the same float32 (float8.shortest: 2.85, not 2.8499999046325684)."""
+    return {name: float8.shortest(value) if isinstance(value, float) else value
+            for name, value in fields_of(kind, data).items()}
 
 
 _HEAD_CODE = re.compile(rb"^(RBX\d\d-|RX\d)")

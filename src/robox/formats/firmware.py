@@ -27,8 +27,11 @@ UNUSED_PAGE = 510
 UNIQUE_ID_PAGE = 511
 
 DEFAULT_OFFSET = 0xBC
-#: Where a (simulated) image says which revision it is: the marker, then 8 characters.
-REVISION_MARKER = b"ROBOX-REVISION:"
+#: The M115 reply every released image carries compiled in: this, its revision, CR LF.
+REVISION_LITERAL = b"FIRMWARE_NAME: robox "
+#: Where this project's stand-in images said their revision before they carried the
+#: literal (the marker, then 8 characters NUL padded): still read, never written.
+LEGACY_REVISION_MARKER = b"ROBOX-REVISION:"
 #: Bounds the printer puts on the SD firmware text, in characters.
 TEXT_MULTIPLE = 2 * PAGE_SIZE  # 512
 TEXT_MIN = 8192  # a binary under 4 KiB is not a credible firmware
@@ -59,11 +62,21 @@ def word_sum(data: bytes | bytearray | memoryview) -> int:
 
 
 def image_revision(image: bytes) -> str | None:
-    """The revision an image declares after REVISION_MARKER, if it declares one."""
-    at = bytes(image).find(REVISION_MARKER)
+    """The revision an image declares (spec: firmware-image.md), if it declares one:
+    what follows its M115 literal up to the line end (r779 in a released robox_r779.bin)."""
+    data = bytes(image)
+    at = data.find(REVISION_LITERAL)
+    while at >= 0:
+        start = at + len(REVISION_LITERAL)
+        end = data.find(b"\r\n", start, start + 33)
+        text = data[start:end].strip() if end > start else b""
+        if text and all(0x21 <= c < 0x7F for c in text):
+            return text.decode("ascii")
+        at = data.find(REVISION_LITERAL, start)
+    at = data.find(LEGACY_REVISION_MARKER)
     if at < 0:
         return None
-    raw = bytes(image[at + len(REVISION_MARKER) : at + len(REVISION_MARKER) + 8])
+    raw = data[at + len(LEGACY_REVISION_MARKER) : at + len(LEGACY_REVISION_MARKER) + 8]
     return raw.split(b"\0", 1)[0].decode("ascii", "replace").strip() or None
 
 

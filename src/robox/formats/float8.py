@@ -62,6 +62,20 @@ def parse(raw: bytes | bytearray) -> float:
     return to_float32(float(match.group(1)))
 
 
+def shortest(value: float) -> float:
+    """A float32 `value` as a person wrote it: the number with the fewest significant
+    digits that reads back (as strtof reads it) as the same float32. 2.85 stored reads
+    back as the float32 2.8499999046325684; shown, it is 2.85 again."""
+    if value - value != 0.0 or value == 0.0:  # NaN, infinite or zero: as it is
+        return value
+    target = to_float32(value)
+    for digits in range(1, 10):  # 9 significant digits tell every float32 apart
+        candidate = float(f"{target:.{digits}g}")
+        if to_float32(candidate) == target:
+            return candidate
+    return target
+
+
 def skip_blanks(text: bytes, i: int) -> int:
     """Where the first byte at or after `i` that is not white space is (len: none)."""
     n = len(text)

@@ -11,10 +11,10 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from robox.errors import ImageError
+from robox.errors import ImageError, UsageError
 from robox.fileio import open_input, read_chunks, refuse_overwriting, replacing
 from robox.formats.protocol import JOB_LINE_LIMIT
-from robox.gcode.text import code_part, looks_like_gcode, split_lines
+from robox.gcode.text import BOM, code_part, looks_like_gcode, split_lines
 from robox.gcode.translate import Detected, Options, Summary, detect, translate
 
 HEAD_BYTES = 1 << 16
@@ -42,6 +42,9 @@ def inspect(path: str | os.PathLike) -> Detected:
 def _lines(source: str | os.PathLike) -> Iterator[tuple[Iterator[bytes], Detected]]:
     with open_input(source, "a G-code file") as handle:
         head, tail = _sniff(handle)
+        if head.startswith(BOM):  # a file a Windows editor saved: the mark is not G-code
+            head = head[len(BOM):]
+            handle.seek(len(BOM))
         if not looks_like_gcode(head):
             raise ImageError(f"{source}: not a G-code file")
         yield split_lines(read_chunks(handle)), detect(head, tail)
@@ -73,10 +76,21 @@ def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
 
 
 def strip_file(source: str | os.PathLike, target: str | os.PathLike) -> None:
-    """`source` as a job as it is: comments and blank lines dropped, CR line ends."""
+    """`source` as a job as it is: comments and blank lines dropped, CR line ends. A
+    `Macro:NAME` line is refused: the printer does not expand macros, a host does."""
     with _lines(source) as (lines, _):
         refuse_overwriting(target, source)
-        _write_job((code for code in map(code_part, lines) if code), target)
+        _write_job(_no_macros(source, map(code_part, lines)), target)
+
+
+def _no_macros(source: str | os.PathLike, codes: Iterable[bytes]) -> Iterator[bytes]:
+    for number, code in enumerate(codes, 1):
+        if code:
+            if code[:6].lower() == b"macro:":
+                raise UsageError(f"{source}: line {number}: {code.decode('ascii', 'replace')}"
+                                 ": the printer does not expand macros (send it with "
+                                 "--macros DIR, without --raw)")
+            yield code
 
 
 @dataclass

@@ -17,11 +17,16 @@ SNIFF_BYTES = 65536
 _WORD = re.compile(r"(\S)([^\sA-Z]*)")  # (str.isspace() is \s, ASCII letters upper-cased)
 
 
+BOM = b"\xef\xbb\xbf"  # UTF-8's byte order mark, which Windows editors put first
+
+
 def code_part(raw: bytes) -> bytes:
-    """A line without its comment (`;` to the end, or from `(`) and outer blanks."""
+    """A line without its comment (`;` to the end, or from `(`) and outer blanks. A
+    `Macro:NAME` line keeps its whole name, parentheses included (AutoMaker's
+    `Macro:Level_Gantry_(2-points)`)."""
     line = raw.split(b";", 1)[0]
     paren = line.find(b"(")
-    if paren >= 0:
+    if paren >= 0 and line.lstrip()[:6].lower() != b"macro:":
         line = line[:paren]
     return line.strip()
 

@@ -45,7 +45,8 @@ from typing import Final
 
 from robox.errors import UsageError
 from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT, head_kind, head_valves
-from robox.gcode.text import code_part, number, words
+from robox.gcode import macros
+from robox.gcode.text import BOM, code_part, number, words
 from robox.gcode.valve import ValveStage
 
 #: A single-material head's nozzle for each feature the slicers mark (;TYPE:), as
@@ -378,7 +379,7 @@ def _width(text: bytes) -> float | None:
 
 
 def sequence(name: str, kind: str) -> list[bytes]:
-    """A start or end sequence for a head kind, from robox/data/sequences/."""
+    """A start or end sequence for a head kind, from src/robox/data/sequences/."""
     base = SEQUENCES
     for candidate in (f"{name}-{kind}.gcode", f"{name}.gcode"):
         path = base / candidate
@@ -409,6 +410,7 @@ class Translator:
         self.width: float | None = None  # the slicer's extrusion width of this feature
         self.feature_nozzle = -1  # the nozzle of the slicer's feature (-1: none marked)
         self.layer = 0  # the slicer's layer changes so far (1: the first layer)
+        self.job_nozzle = 0  # a Robox job's nozzle, as its last T0/T1 chose it
         self.stage: ValveStage | None = None
         if options.valve == "automaker" and self.kind != "plain" and not detected.robox:
             self.stage = ValveStage(head_valves(options.head, options.ejection))
@@ -440,6 +442,8 @@ class Translator:
         return "D" if self.kind == "dual" and self.tool == 1 else "E"
 
     def _tool_nozzle(self) -> int:
+        if self.s.passthrough:
+            return self.job_nozzle
         if self.kind == "dual":
             return 0 if self.tool == 1 else 1  # E feeds nozzle 1, D feeds nozzle 0
         return self.nozzle or 0
@@ -537,7 +541,7 @@ class Translator:
                     continue
                 if not line.isascii():
                     raise UsageError(f"line {s.lines_in}: non-ASCII bytes outside a comment")
-                if line.startswith((b"Macro:", b"macro:")):
+                if line[:6].lower() == b"macro:":
                     yield from self._count(self._expand(line))
                     continue
             try:
@@ -621,32 +625,32 @@ class Translator:
                     line = line.replace(b"E", b"D")
             yield line
 
-    def _expand(self, line: bytes) -> Iterator[bytes]:
-        """A `Macro:NAME` line, from the macros directory (AutoMaker's naming:
-        NAME#HEAD#NOZZLE.gcode, then NAME#HEAD.gcode, then NAME.gcode)."""
-        if not line.lower().startswith(b"macro:"):
+    def _expand(self, line: bytes, within: tuple[str, ...] = ()) -> Iterator[bytes]:
+        """A `Macro:NAME` line, from the macros directory as AutoMaker chose the file
+        (robox.gcode.macros); any other line as it is. `within`: the macros being
+        expanded, outermost first."""
+        name = macros.directive(line)
+        if name is None:
             if self.s.passthrough:
                 self._book_passthrough(line)
+                if line[:1] in (b"T", b"t") and line[1:].strip() in (b"0", b"1"):
+                    self.job_nozzle = int(line[1:].strip())
             yield line
             return
-        name = line[6:].strip().decode("ascii")
         if not self.o.macros:
             raise UsageError(f"line {self.s.lines_in}: Macro:{name} needs --macros DIR")
-        head = self.o.head.strip()
-        nozzle = self._tool_nozzle()
-        for candidate in (f"{name}#{head}#N{nozzle}.gcode", f"{name}#{head}.gcode",
-                          f"{name}.gcode"):
-            path = self.o.macros / candidate
-            if path.is_file():
-                self.s.macros += 1
-                for raw in path.read_bytes().splitlines():
-                    inner = code_part(raw)
-                    if inner:
-                        if not inner.isascii():
-                            raise UsageError(f"{path}: non-ASCII bytes outside a comment")
-                        yield from self._expand(inner)
-                return
-        raise UsageError(f"line {self.s.lines_in}: no macro {name!r} in {self.o.macros}")
+        if name in within:
+            chain = " -> ".join((*within, name))
+            raise UsageError(f"line {self.s.lines_in}: macro {name!r} includes itself "
+                             f"({chain})")
+        path = macros.find(self.o.macros, name, self.o.head.strip(), self._tool_nozzle())
+        self.s.macros += 1
+        for raw in path.read_bytes().removeprefix(BOM).splitlines():
+            inner = code_part(raw)
+            if inner:
+                if not inner.isascii():
+                    raise UsageError(f"{path}: non-ASCII bytes outside a comment")
+                yield from self._expand(inner, (*within, name))
 
     def _book_passthrough(self, line: bytes) -> None:
         code, params = words(line)

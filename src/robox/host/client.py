@@ -314,10 +314,12 @@ class Printer:
             raise PrinterError(1 << bit, f"read {which} EEPROM")
         return reply[1:]
 
-    def read_eeprom_fields(self, which: str) -> dict:
+    def read_eeprom_fields(self, which: str, shown: bool = False) -> dict:
+        """The EEPROM's fields as the printer reads them, or with `shown` as a person
+        wrote them (eeprom_format.shown_fields)."""
         data = self.read_eeprom(which)
         kind = "head" if which == "head" else "reel"
-        return eeprom_format.fields_of(kind, data)
+        return (eeprom_format.shown_fields if shown else eeprom_format.fields_of)(kind, data)
 
     def write_eeprom(self, which: str, address: int, data: bytes) -> None:
         index = EEPROMS[which]

@@ -15,6 +15,7 @@ from robox.fileio import read_input, write_atomically
 from robox.firmware.eeprom import Eeproms, Status
 from robox.firmware.error_flags import ErrorFlags
 from robox.formats import eeprom as fmt
+from robox.formats import float8
 from robox.formats.eeprom import CHIP_SIZE, DATA_SIZE, EepromIndex
 from robox.hardware.clock import SimClock
 from robox.hardware.eeprom import EepromChip
@@ -83,7 +84,7 @@ def _field_report(kind: str, data: bytes) -> dict:
     report = {}
     for f in fmt.FIELDS[kind].values():
         value = f.read(data)
-        report[f.name] = {"value": round(value, 6) if isinstance(value, float) else value,
+        report[f.name] = {"value": float8.shortest(value) if isinstance(value, float) else value,
                           "raw": f.raw(data).decode("ascii", "backslashreplace")}
     return report
 

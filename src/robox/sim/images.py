@@ -11,7 +11,7 @@ from robox.formats.firmware import (
     FLASH_SIZE,
     HOURS_PAGE,
     PAGE_SIZE,
-    REVISION_MARKER,
+    REVISION_LITERAL,
     UNIQUE_ID_PAGE,
     insert_anti_checksum,
 )
@@ -27,7 +27,7 @@ def firmware_image(revision: str = DEFAULT_REVISION, size: int = IMAGE_BYTES,
     bytes a real one would (size, word sum, version, revision)."""
     body = bytearray(random.Random(seed).randbytes(size))  # (not numpy: start-up time)
     body[DEFAULT_OFFSET : DEFAULT_OFFSET + 4] = bytes(4)
-    marker = REVISION_MARKER + revision.encode("ascii")[:8].ljust(8, b"\0")
+    marker = REVISION_LITERAL + revision.encode("ascii") + b"\r\n\0"  # as a C literal
     body[0x200 : 0x200 + len(marker)] = marker
     body[-PAGE_SIZE:] = body[-PAGE_SIZE:].replace(b"\xff", b"\xfe")  # last page not erased
     result = insert_anti_checksum(bytes(body))

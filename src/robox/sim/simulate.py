@@ -224,7 +224,7 @@ def _prepared(source: str | os.PathLike, setup: Setup, kind: str
               ) -> Iterator[tuple[JobFile, VirtualPrinter]]:
     detected = inspect(source)
     options = None
-    if not setup.raw and detected.from_slicer:
+    if not setup.raw and (detected.from_slicer or setup.macros is not None):
         options = Options(filament_diameter=(setup.filament_diameter,) * 2, head=setup.head,
                           nozzle=setup.nozzle, macros=setup.macros, valve=setup.valve,
                           ejection=setup.ejection)
