@@ -67,7 +67,7 @@ def parts(tmp_path, count: int) -> list:
     out = []
     for n in range(count):
         part = tmp_path / f"part{n}.gcode"
-        part.write_bytes(f"G1 X{n + 1} ; {n}\n".encode() * (3000 + 500 * n))
+        part.write_bytes(f"G1 X{n + 1}\r".encode() * (3000 + 500 * n))  # stored as it is
         out.append(part)
     return out
 

@@ -17,8 +17,16 @@ from robox.cli.common import (
     json_option,
     yes_option,
 )
+from robox.cli.gcode import (
+    ejection_option,
+    macros_option,
+    nozzle_option,
+    parse_ejection,
+    valve_option,
+)
 from robox.errors import ImageError
 from robox.fileio import open_input, write_atomically
+from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT
 from robox.formats.sdcard import default_id
 from robox.offline import sdcard as images
 
@@ -71,12 +79,63 @@ def ls_cmd(image: str, as_json: bool) -> None:
 @click.argument("image", type=click.Path(dir_okay=False, readable=False))
 @click.argument("file", type=click.Path(dir_okay=False, readable=False))
 @click.option("--id", "file_id", help="File id (at most 16 ASCII bytes); default: as "
-                                      "send-job's, the start of FILE's name and of its "
-                                      "content's SHA-1.")
-@click.option("--job", is_flag=True, help="Mark the file as a print job.")
+                                      "send-job's, the start of FILE's name and of the "
+                                      "stored content's SHA-1.")
+@click.option("--job", is_flag=True, help="A print job: stored as send-job sends it (a "
+                                          "slicer's G-code translated, comments dropped, "
+                                          "CR line ends).")
+@click.option("--raw", is_flag=True, help="With --job: G-code as it is (comments dropped), "
+                                          "a slicer's not translated.")
+@click.option("--head", default=HEAD_DEFAULT, show_default=True,
+              help="With --job: the head a slicer's G-code is translated for.")
+@click.option("--filament-diameter", type=click.FloatRange(0.5, 5.0),
+              default=DEFAULT_DIAMETER, show_default=True,
+              help="With --job: mm, for a slicer's E in mm of filament.")
+@nozzle_option
+@macros_option
+@valve_option
+@ejection_option
 @json_option
-def put_cmd(image: str, file: str, file_id: str | None, job: bool, as_json: bool) -> None:
-    """Store FILE on IMAGE as a printer receives it (start, 512-byte chunks, end)."""
+def put_cmd(image: str, file: str, file_id: str | None, job: bool, raw: bool, head: str,
+            filament_diameter: float, nozzle: int | None, macros: Path | None, valve: str,
+            ejection: str | None, as_json: bool) -> None:
+    """Store FILE on IMAGE as a printer receives it (start, 512-byte chunks, end): byte
+    for byte, or with --job as the print job send-job would send (and under the same id)."""
+    if not job:
+        stored = _put_as_it_is(image, file, file_id, False)
+    else:
+        from robox.gcode import Options, job_file
+        from robox.gcode.files import inspect
+
+        detected = inspect(file)
+        options = None
+        if not raw and (detected.from_slicer or macros is not None):
+            options = Options(filament_diameter=(filament_diameter,) * 2, head=head,
+                              nozzle=nozzle, macros=macros, valve=valve,
+                              ejection=parse_ejection(ejection))
+        with job_file(file, options) as prepared:
+            prepared.refuse_long_lines()
+            largest = images.largest_file(image)
+            if prepared.size > largest:
+                raise ImageError(f"{file}: the job is {prepared.size} bytes; the largest "
+                                 f"file {image} holds is {largest} bytes")
+            t = prepared.translation
+            if t is not None and not t.passthrough and not as_json:
+                click.echo(f"translated {t.slicer} G-code ({t.e_mode} E) for a {t.head} head "
+                           "(--raw stores it as it is)", err=True)
+            name = default_id(Path(file).stem, prepared.sha1) if file_id is None else file_id
+            with open(prepared.path, "rb") as source:
+                stored = images.put_stream(image, source, name, True)
+    if as_json:
+        emit_json(stored)
+        return
+    kind = "job" if job else "file"
+    click.echo(f"{image}: stored {kind} {stored['id']!r} ({stored['length']} bytes)")
+    for dropped in stored["dropped"]:
+        click.echo(f"{image}: dropped {dropped!r} to make room", err=True)
+
+
+def _put_as_it_is(image: str, file: str, file_id: str | None, job: bool) -> dict:
     with open_input(file, "a file to store") as source:
         size = os.fstat(source.fileno()).st_size
         largest = images.largest_file(image)  # refused by size before it is read
@@ -89,27 +148,21 @@ def put_cmd(image: str, file: str, file_id: str | None, job: bool, as_json: bool
                 digest.update(block)
             source.seek(0)
             file_id = default_id(Path(file).stem, digest.hexdigest())
-        result = images.put_stream(image, source, file_id, job)
-    if as_json:
-        emit_json(result)
-        return
-    kind = "job" if job else "file"
-    click.echo(f"{image}: stored {kind} {result['id']!r} ({result['length']} bytes)")
-    for dropped in result["dropped"]:
-        click.echo(f"{image}: dropped {dropped!r} to make room", err=True)
+        return images.put_stream(image, source, file_id, job)
 
 
 @sdcard.command("get")
 @click.argument("image", type=click.Path(dir_okay=False, readable=False))
-@click.argument("file_id", metavar="ID")
+@click.argument("file_id", metavar="ID|NAME")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, readable=False),
               help="Write to this file instead of standard output.")
 @yes_option
 def get_cmd(image: str, file_id: str, output: str | None, yes: bool) -> None:
-    """Copy the newest file with id ID from IMAGE, byte-exact."""
+    """Copy the newest file with id ID from IMAGE, byte-exact. NAME, the name of a file
+    put or sent without --id (part.gcode), finds the id made from it."""
     if output is not None:
         guard_output(output, (image,), "a file from the card", yes)
-    data = images.get_file(image, file_id)
+    data = images.get_file(image, images.resolve_id(image, file_id))
     if output is None:
         sys.stdout.buffer.write(data)
         sys.stdout.buffer.flush()

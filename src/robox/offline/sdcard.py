@@ -22,10 +22,12 @@ from robox.firmware.error_flags import ErrorFlags
 from robox.firmware.file_system import FileSystem, MountPlan, plan_mount, scan_copies
 from robox.formats.sdcard import (
     BLOCK_SIZE,
+    ID_SIZE,
     MIN_CARD_BLOCKS,
     NO_JOB,
     Directory,
     card_blocks,
+    default_id,
     file_blocks,
     following_block,
     id_text,
@@ -183,6 +185,27 @@ def list_image(path: str | os.PathLike) -> dict:
             "files": [_file_entry(d, i, card.capacity) for i in d.ring()],
             "last_job": None if d.last_job == NO_JOB else d.last_job,
         }
+
+
+def resolve_id(path: str | os.PathLike, wanted: str) -> str:
+    """The id on the card that `wanted` names: itself, or the file name a file was put
+    or sent under without --id (part.gcode: the one id on the card made from that name,
+    robox.formats.sdcard.default_id). NotFoundError lists the ids there are."""
+    if not wanted or not wanted.isascii() or (len(wanted) > ID_SIZE and
+                                              not Path(wanted).suffix):
+        make_id(wanted)  # refuses it: neither an id nor a file's name
+    ids = [entry["id"] for entry in list_image(path)["files"]]
+    if wanted in ids:
+        return wanted
+    stem = default_id(Path(wanted).stem, "")  # the name's part of the id, and "_"
+    made = sorted({i for i in ids if i.startswith(stem) and len(i) == ID_SIZE and
+                   all(c in "0123456789abcdef" for c in i[len(stem):])})
+    if len(made) == 1:
+        return made[0]
+    if made:
+        raise UsageError(f"{path}: {wanted!r} could be any of {', '.join(made)}: give the id")
+    listed = ", ".join(dict.fromkeys(ids)) or "none"
+    raise NotFoundError(f"{path}: no file with id {wanted!r} (ids on the card: {listed})")
 
 
 def get_file(path: str | os.PathLike, file_id: str) -> bytes:
