@@ -6,16 +6,21 @@ in Robox mode speaks framed commands (`robox.host.client.Printer`). `RoboxLink` 
 the serial-like object OctoPrint reads and writes; it answers each line in text,
 doing what the line asks through the client:
 
-- `M105`: the status report's four heaters as `T0` (nozzle 0), `T1` (nozzle 1),
-  `B` (bed) and `C` (ambient, OctoPrint's chamber), each with the target it is
-  heating to now (0 when off).
-- `M115`: the firmware's revision and unique ID, and the SD card capability.
+- `M105`: the status report's heaters as `T0` (nozzle 0), `T1` (nozzle 1, only on a
+  dual-material head: a single-material head has one heater for both nozzles), `B`
+  (bed) and `C` (ambient, OctoPrint's chamber), each with the target it is heating to
+  now (0 when off).
+- `M115`: the firmware's revision and unique ID, the heads' extruder count, and the
+  SD card capability.
 - `M20`/`M21`/`M23`/`M24`/`M25`/`M26 S0`/`M27`: the printer's card. Files are listed
   by id; a file selected and started is run with 0x94, paused and resumed with
   0x98, cancelled (OctoPrint's M25, M27, M26 S0) with 0xff; `M27` reports the job's
-  line against the lines the file has, when the link uploaded it (sizes are not
-  on the wire). When the job ends, `Done printing file`. A job found printing when
-  OctoPrint connects (started by another host, or before a reconnection) is told
+  progress in bytes of the file (OctoPrint shows it as "Printed"): the job's line
+  over the file's lines, scaled to the file's size, when this computer uploaded it
+  (sizes are not on the wire). A job the printer paused for an error is told as
+  `//action:paused`, so OctoPrint shows it paused and offers Resume and Cancel.
+  When the job ends, `Done printing file`. A job found printing when OctoPrint
+  connects (started by another host, or before a reconnection) is told
   after the card's list as a file selected and a position past its start, which
   OctoPrint takes for a print started at the printer: it shows and follows it.
 - Any other line is executed by the printer (0x95) and answered with its reply.
@@ -42,7 +47,8 @@ import time
 from collections.abc import Callable
 
 from robox.errors import RoboxError
-from robox.formats.protocol import error_names
+from robox.formats.heads import head_kind
+from robox.formats.protocol import PAUSE_MASK_CONNECTED, error_names
 from robox.host import catalogue
 
 LINE_NUMBER = re.compile(r"^N-?\d+\s*")
@@ -67,10 +73,13 @@ def _target(heater: dict) -> float:
     return float(heater.get(which) or 0.0) if which else 0.0
 
 
-def temperature_line(status) -> str:
+def temperature_line(status, nozzle_heaters: int = 2) -> str:
+    """M105's reply: nozzle 1's heater only where the head has one."""
     t = status.temperatures
     parts = []
     for key, name in (("T0", "nozzle0"), ("T1", "nozzle1"), ("B", "bed"), ("C", "ambient")):
+        if key == "T1" and nozzle_heaters < 2:
+            continue
         parts.append(f"{key}:{t[name]['measured']:.1f} /{_target(t[name]):.1f}")
     return " ".join(parts)
 
@@ -125,6 +134,9 @@ class RoboxLink:
         self._selected: str | None = None
         self._printing: str | None = None
         self._lines: dict[str, int] = {}    # file id -> lines, where known
+        self._sizes: dict[str, int] = {}    # file id -> bytes, where known
+        self._error_paused = False  # told OctoPrint the printer paused for an error
+        self._head: tuple[str, int] | None = None  # (head EEPROM state, nozzle heaters)
         self._uploading: str | None = None  # the file this link is storing now
         self._held = False  # paused by OctoPrint: an upload's catch-up resume leaves it
         self._reported = 0  # the last position told to OctoPrint for the selected job
@@ -132,6 +144,8 @@ class RoboxLink:
             known = catalogue.load(printer.unique_id())
             self._lines = {k: v["lines"] for k, v in known.items()
                            if isinstance(v.get("lines"), int)}
+            self._sizes = {k: v["size"] for k, v in known.items()
+                           if isinstance(v.get("size"), int)}
         self._closed = False
         self._announce: list[str] = []  # a job found printing, told after the card's list
         with contextlib.suppress(RoboxError):
@@ -212,12 +226,26 @@ class RoboxLink:
 
     def _M105(self, line: str) -> list[str]:
         status = self.printer.status()
-        notes = self._errors()
-        return [*notes, f"ok {temperature_line(status)}"]
+        notes = self._errors(status)
+        return [*notes, f"ok {temperature_line(status, self._nozzle_heaters(status))}"]
+
+    def _nozzle_heaters(self, status) -> int:
+        """The head's nozzle heaters: two on a dual-material head, one on the others;
+        read from the head EEPROM again whenever its state changes (a head change)."""
+        state = status.eeproms.get("head", "?")
+        if self._head is None or self._head[0] != state:
+            heaters = 2
+            if state == "valid":
+                with contextlib.suppress(RoboxError):
+                    code = str(self.printer.read_eeprom_fields("head")["type_code"])
+                    heaters = 2 if head_kind(code) == "dual" else 1
+            self._head = (state, heaters)
+        return self._head[1]
 
     def _M115(self, line: str) -> list[str]:
+        heaters = self._nozzle_heaters(self.printer.status())
         return [f"FIRMWARE_NAME:Robox {self.printer.revision()} "
-                f"UUID:{self.printer.unique_id()} EXTRUDER_COUNT:2",
+                f"UUID:{self.printer.unique_id()} EXTRUDER_COUNT:{heaters}",
                 "Cap:SDCARD:1", "Cap:AUTOREPORT_TEMP:0", "ok"]
 
     def _M114(self, line: str) -> list[str]:
@@ -249,11 +277,11 @@ class RoboxLink:
         # was, by someone) and a position past its start, which OctoPrint takes for a
         # print started at the printer, and follows
         announce, self._announce = self._announce, []
-        return ["Begin file list", *(f"{shown(n)} {self._lines.get(n, 0)}" for n in names),
+        return ["Begin file list", *(f"{shown(n)} {self._sizes.get(n, 0)}" for n in names),
                 "End file list", *announce, "ok"]
 
     def _opened(self, name: str) -> list[str]:
-        return [f"File opened: {shown(name)} Size: {self._lines.get(name, 0)}",
+        return [f"File opened: {shown(name)} Size: {self._sizes.get(name, 0)}",
                 "File selected"]
 
     def _position(self, status) -> str:
@@ -261,13 +289,16 @@ class RoboxLink:
         position it last heard: OctoPrint polls a paused card print and takes a
         position that has moved on for a print restarted at the printer, and a Robox
         finishes the moves under way before it stands still."""
-        total = self._lines.get(status.job, 0)
-        line = max(status.line, 1) if not total else min(status.line, total)
+        lines = self._lines.get(status.job, 0)
+        size = self._sizes.get(status.job, 0)
+        if lines and size:  # the job's line, as the bytes of the file it has run
+            at = min(status.line, lines) * size // lines
+        else:  # a size unknown is told as 0: a position with no percentage
+            at, size = max(status.line, 1), 0
         if self._held:
-            line = self._reported
-        self._reported = line
-        # a size unknown is told as 0: a position with no percentage
-        return f"SD printing byte {line}/{total}"
+            at = self._reported
+        self._reported = at
+        return f"SD printing byte {at}/{size}"
 
     def _M23(self, line: str) -> list[str]:
         asked = line.split(None, 1)[1].strip() if " " in line else ""
@@ -282,11 +313,13 @@ class RoboxLink:
         status = self.printer.status()
         if status.job is not None and status.pause in ("pausing", "paused", "selfie pause"):
             self._held = False
+            self._error_paused = False
             self.printer.resume()
         elif status.job is None and self._selected:
             self.printer.run_job(self._selected)
             self._printing = self._selected
             self._reported = 0
+            self._held = self._error_paused = False
         elif status.job is not None:
             self._printing = status.job  # already printing: followed to its end
         return ["ok"]
@@ -298,10 +331,12 @@ class RoboxLink:
         return ["ok"]
 
     def _M26(self, line: str) -> list[str]:
-        if re.search(r"\bS0\b", line) and self.printer.status().job is not None:
-            self.printer.abort()  # OctoPrint's cancel: M25, M27, M26 S0
-            self._printing = None
+        if re.search(r"\bS0\b", line):  # OctoPrint's cancel: M25, M27, M26 S0
+            if self.printer.status().job is not None:
+                self.printer.abort()
+            self._printing = None  # (a job that ended meanwhile: cancelled all the same)
             self._held = False
+            self._error_paused = False
         return ["ok"]
 
     def _M27(self, line: str) -> list[str]:
@@ -311,12 +346,20 @@ class RoboxLink:
         return [self._position(status), "ok"]
 
     # ------------------------------------------------------------- background
-    def _errors(self) -> list[str]:
+    def _errors(self, status) -> list[str]:
+        """The printer's new errors as notifications (then cleared); an error that
+        pauses a job, while one runs, also as `//action:paused`: the printer has paused
+        it, and OctoPrint then shows it paused, with Resume and Cancel."""
         bits = self.printer.errors()
         if not bits:
             return []
         self.printer.clear_errors()
-        return [f"//action:notification Robox: {name}" for name in error_names(bits)]
+        notes = [f"//action:notification Robox: {name}" for name in error_names(bits)]
+        if bits & PAUSE_MASK_CONNECTED and status.job is not None and not self._held \
+                and not self._error_paused:
+            self._error_paused = True
+            notes.append("//action:paused")
+        return notes
 
     def _watch_job(self) -> None:
         """Say `Done printing file` once the job OctoPrint started has ended."""
@@ -342,6 +385,7 @@ class RoboxLink:
         the rest uploads, and the upload resumes the job whenever it catches up."""
         self._lines[file_id] = lines
         size = source.seek(0, 2)
+        self._sizes[file_id] = size
 
         def each_chunk(done: int, total: int) -> None:
             if self._closed:

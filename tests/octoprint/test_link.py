@@ -55,14 +55,15 @@ def say(link, line: str) -> list[str]:
 
 
 def test_temperatures_under_octoprints_names_with_the_targets_heated_to(link):
-    assert say(link, "M105") == ["ok T0:20.0 /0.0 T1:0.0 /0.0 B:20.0 /0.0 C:20.0 /0.0"]
+    # a single-material head: one heater for both nozzles, so no tool 1
+    assert say(link, "M105") == ["ok T0:20.0 /0.0 B:20.0 /0.0 C:20.0 /0.0"]
     assert say(link, "M104 S200") == ["ok"]
     assert say(link, "M140 S60") == ["ok"]
     deadline = time.monotonic() + 10  # the printer runs executed lines a moment later
     while " /60.0 C:" not in (answer := say(link, "M105")[-1]):
         assert time.monotonic() < deadline, answer
         time.sleep(0.05)
-    assert " /200.0 T1:" in answer and answer.startswith("ok T0:")
+    assert " /200.0 B:" in answer and answer.startswith("ok T0:") and "T1:" not in answer
     assert " B:" in answer and answer.split(" B:")[1].split()[1] == "/60.0"
     status = link.printer.status()
     assert status.temperatures["nozzle0"]["target"] == 200.0
@@ -73,6 +74,7 @@ def test_temperatures_under_octoprints_names_with_the_targets_heated_to(link):
 def test_firmware_and_card_as_octoprint_asks_for_them(link):
     m115 = say(link, "M115")
     assert m115[0].startswith(f"FIRMWARE_NAME:Robox {link.printer.revision()} UUID:")
+    assert m115[0].endswith(" EXTRUDER_COUNT:1")  # a single-material head
     assert "Cap:SDCARD:1" in m115
     assert say(link, "M21") == ["SD card ok", "ok"]
     files = link.printer.files()
@@ -95,10 +97,14 @@ def test_an_upload_prints_while_it_uploads_and_octoprint_pauses_resumes_cancels(
         seen["progress"] = say(link, "M27")
 
     link.upload(io.BytesIO(JOB), "partA", 901, ready=ready)
-    assert seen["select"] == ["File opened: partA.gco Size: 901", "File selected", "ok"]
+    size = len(JOB)  # OctoPrint shows a card file's size and "Printed" in bytes
+    assert seen["select"] == [f"File opened: partA.gco Size: {size}", "File selected", "ok"]
     assert seen["status"].job == "partA" and seen["open"][0] == "partA"
     assert seen["progress"][0].startswith("SD printing byte ")
-    assert seen["progress"][0].endswith("/901")
+    done, total = map(int, seen["progress"][0].removeprefix("SD printing byte ").split("/"))
+    assert total == size and 0 <= done <= size
+    line = seen["status"].line  # the job's line (asked before), as the bytes it has run
+    assert done >= (line - 1) * size // 901
     assert say(link, "M25") == ["ok"]
     deadline = time.monotonic() + 30
     while link.printer.status().pause != "paused":
@@ -114,9 +120,9 @@ def test_an_upload_prints_while_it_uploads_and_octoprint_pauses_resumes_cancels(
         assert time.monotonic() < deadline
         time.sleep(0.05)
     assert say(link, "M27") == ["Not SD printing", "ok"]
-    assert "partA.gco 901" in say(link, "M20")
-    assert say(link, "M23 partA.gco") == ["File opened: partA.gco Size: 901", "File selected",
-                                          "ok"]
+    assert f"partA.gco {size}" in say(link, "M20")
+    assert say(link, "M23 partA.gco") == [f"File opened: partA.gco Size: {size}",
+                                          "File selected", "ok"]
     link.close()
     state = link.state
     done = CliRunner().invoke(cli, ["sim", "stop", "--state", str(state), "--json"])
@@ -266,9 +272,10 @@ def test_a_job_printing_when_octoprint_connects_is_shown_and_followed(link):
     listed = say(joining, "M20")
     at = listed.index("End file list")
     opened, selected, position, ok = listed[at + 1:]
-    assert opened == f"File opened: running.gco Size: {lines}" and selected == "File selected"
+    assert opened == f"File opened: running.gco Size: {len(JOB)}"
+    assert selected == "File selected"
     current, total = map(int, position.removeprefix("SD printing byte ").split("/"))
-    assert 0 < current < total == lines and ok == "ok"
+    assert 0 < current < total == len(JOB) and ok == "ok"
     assert say(joining, "M20")[-2:] == ["End file list", "ok"]  # told once
     joining.printer.abort()
     heard = []
@@ -334,4 +341,65 @@ def test_a_paused_print_reports_the_position_octoprint_last_heard(link):
     assert say(link, "M24") == ["ok"]
     resumed = say(link, "M27")[0]
     assert int(resumed.split()[-1].split("/")[0]) > int(told.split()[-1].split("/")[0])
+    link.printer.abort()
+
+
+def test_a_dual_material_head_shows_both_nozzle_heaters(link):
+    link.printer.write_eeprom_fields("head", {"type_code": "RBX01-DM"})
+    dual = RoboxLink(link.printer, 0.2)  # OctoPrint connecting to a dual-material head
+    assert dual.readline() == b"start\n"
+    assert say(dual, "M115")[0].endswith(" EXTRUDER_COUNT:2")
+    answer = say(dual, "M105")[-1]
+    assert answer.startswith("ok T0:") and " T1:" in answer and " B:" in answer
+
+
+def test_a_job_the_printer_pauses_for_an_error_is_paused_for_octoprint(link):
+    """An error that pauses a job (here nozzle 1's open thermistor, heated by a dual
+    head's code on a single-material head): OctoPrint is told `//action:paused`, once,
+    so it shows the print paused and offers Resume and Cancel."""
+    bad = b"M104 T200\r" + b"G4 S2\r" * 30  # paused at the line after the error
+    link.upload(io.BytesIO(bad), "badheat", 31)
+    assert say(link, "M23 badheat.gco")[-1] == "ok"
+    assert say(link, "M24") == ["ok"]
+    heard: list[str] = []
+    deadline = time.monotonic() + 60
+    while "//action:paused" not in heard:
+        assert time.monotonic() < deadline, heard
+        heard += say(link, "M105")
+    assert any("nozzle 1 thermistor" in line for line in heard)
+    while link.printer.status().pause != "paused":
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+    heard = say(link, "M105") + say(link, "M27")
+    assert "//action:paused" not in heard  # told once
+    for line in ("M25", "M27", "M26 S0"):  # OctoPrint's Cancel
+        say(link, line)
+    assert link.printer.status().job is None
+
+
+def test_a_cancel_heard_after_the_job_ended_leaves_the_next_print_unpaused(link):
+    """OctoPrint's cancel (M25, M27, M26 S0) may reach a job that ends between its
+    lines: the next print is then reported moving on, not held at the old position."""
+    short = b"G28 X Y\r" + b"G4 P200\r"
+    link.upload(io.BytesIO(short), "brief", 2)
+    say(link, "M23 brief.gco")
+    say(link, "M24")
+    say(link, "M25")  # OctoPrint's cancel begins ...
+    deadline = time.monotonic() + 60
+    while link.printer.status().job is not None:  # ... the job ends on its own ...
+        assert time.monotonic() < deadline
+        if link.printer.status().pause == "paused":
+            link.printer.resume()
+        time.sleep(0.02)
+    say(link, "M27")
+    say(link, "M26 S0")  # ... and its end arrives
+    link.upload(io.BytesIO(JOB), "next", 901)
+    say(link, "M23 next.gco")
+    say(link, "M24")
+    first = int(say(link, "M27")[0].removeprefix("SD printing byte ").split("/")[0])
+    while link.printer.status().line < 50:
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+    later = int(say(link, "M27")[0].removeprefix("SD printing byte ").split("/")[0])
+    assert later > first
     link.printer.abort()

@@ -5,13 +5,16 @@ through its REST API only, as a user's browser does. The printer is a virtual on
 served in the background (`robox-cli sim serve --detach`), reached through the
 plugin's `robox:sim:DIR` port. Checked, each through what OctoPrint reports:
 
-- the Robox's four heaters under OctoPrint's names (tool0, tool1, bed, chamber),
-  and a target set on tool 0 reaching nozzle 0 alone;
+- the Robox's heaters under OctoPrint's names (tool0, bed, chamber; no tool1 on the
+  virtual printer's single-material head), and a target set on tool 0 reaching
+  nozzle 0 alone;
 - an upload to the card with print: OctoPrint is printing from the card before the
   upload has ended (print while uploading), progress advances, and pause, resume and
   cancel reach the printer; the stored file is the job `robox-cli send-job` would
   store, byte for byte;
-- a printer error (a job line too long) shown as an OctoPrint notification.
+- "Printed" counted in bytes of the file;
+- a printer error shown as an OctoPrint notification, and the job the printer paused
+  for it shown as Paused, then cancelled with its heaters off.
 
 OctoPrint is taken from this environment when installed (`.[test]` installs it),
 else installed into a scratch environment; the test is skipped, saying why, only
@@ -110,14 +113,14 @@ class OctoPrint:
     def state(self) -> str:
         return self.call("GET", "/api/job")["state"]
 
-    def connect(self, port: str) -> None:
-        """Connect to `port`, wait until Operational, and show two tools and the
+    def connect(self, port: str, tools: int = 1) -> None:
+        """Connect to `port`, wait until Operational, and show `tools` tools and the
         chamber (the Robox's ambient)."""
         self.call("POST", "/api/connection", {"command": "connect", "port": port,
                                               "baudrate": 115200})
         self.until(f"Operational on {port}", lambda: self.state() == "Operational")
         self.call("PATCH", "/api/printerprofiles/_default",
-                  {"profile": {"heatedChamber": True, "extruder": {"count": 2}}})
+                  {"profile": {"heatedChamber": True, "extruder": {"count": tools}}})
 
     def disconnect(self) -> None:
         self.call("POST", "/api/connection", {"command": "disconnect"})
@@ -205,11 +208,12 @@ def test_octoprint_drives_a_robox(rig, tmp_path):
 
     def targets():
         t = op.call("GET", "/api/printer").get("temperature", {})
-        if {"tool0", "tool1", "bed", "chamber"} <= t.keys() and t["tool0"]["target"] == 150:
+        if {"tool0", "bed", "chamber"} <= t.keys() and t["tool0"]["target"] == 150:
             return t
         return None
     t = op.until("tool 0 heating to 150", targets, timeout=30)
-    assert t["tool1"]["target"] == 0 and t["bed"]["target"] == 0
+    assert "tool1" not in t  # a single-material head has one nozzle heater
+    assert t["bed"]["target"] == 0
     assert 0 < t["tool0"]["actual"] < 300 and 0 < t["chamber"]["actual"] < 100
     op.call("POST", "/api/printer/tool", {"command": "target", "targets": {"tool0": 0}})
     op.until("tool 0 off", lambda: op.call("GET", "/api/printer")["temperature"]["tool0"]
@@ -228,6 +232,10 @@ def test_octoprint_drives_a_robox(rig, tmp_path):
     assert card_id not in _catalogue(base), "the upload had ended before the print began"
     op.until("progress", lambda: (op.call("GET", "/api/job")["progress"]["completion"] or 0)
              > 0, timeout=60)
+    # "Printed" in bytes of the job OctoPrint uploaded, not in its lines
+    job = op.call("GET", "/api/job")
+    assert job["job"]["file"]["size"] == len(expected)
+    assert 0 < job["progress"]["filepos"] <= len(expected)
 
     # --- pause (the upload carries on), resume, cancel
     op.call("POST", "/api/job", {"command": "pause", "action": "pause"})
@@ -244,13 +252,19 @@ def test_octoprint_drives_a_robox(rig, tmp_path):
 
     # --- a printer error becomes an OctoPrint notification: a dual head's nozzle 1
     # heated on a single-material head, whose thermistor input reads open
-    bad = b"M104 T200\nG4 S60\n"
+    bad = b"M104 T200\n" + b"G4 S2\n" * 30
     op.upload_to_card("bad_heat.gcode", bad, print_it=True)
 
     def notified():
         notes = op.call("GET", "/api/plugin/action_command_notification")["notifications"]
         return [n for n in notes if "nozzle 1 thermistor" in n["message"]]
     op.until("the error as a notification", notified, timeout=90, every=0.2)
+    # the printer paused the job for it: OctoPrint shows it paused, offering Cancel
+    op.until("Paused for the error", lambda: op.state() == "Paused", timeout=60)
+    op.call("POST", "/api/job", {"command": "cancel"})
+    op.until("Operational after cancel", lambda: op.state() == "Operational", timeout=60)
+    temperature = op.call("GET", "/api/printer")["temperature"]
+    assert temperature["tool0"]["target"] == 0  # the aborted job's heaters are off
 
     # --- the card holds the job as robox-cli would have stored it
     op.disconnect()
