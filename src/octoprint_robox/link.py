@@ -285,8 +285,8 @@ class RoboxLink:
                 "File selected"]
 
     def _position(self, status) -> str:
-        """`SD printing byte` for the job's line. While OctoPrint has it paused, the
-        position it last heard: OctoPrint polls a paused card print and takes a
+        """`SD printing byte` for the job's line. While OctoPrint has it paused (or was
+        told the printer paused it), the position it last heard: OctoPrint polls a paused card print and takes a
         position that has moved on for a print restarted at the printer, and a Robox
         finishes the moves under way before it stands still."""
         lines = self._lines.get(status.job, 0)
@@ -295,7 +295,7 @@ class RoboxLink:
             at = min(status.line, lines) * size // lines
         else:  # a size unknown is told as 0: a position with no percentage
             at, size = max(status.line, 1), 0
-        if self._held:
+        if self._held or self._error_paused:
             at = self._reported
         self._reported = at
         return f"SD printing byte {at}/{size}"

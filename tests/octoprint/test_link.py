@@ -363,8 +363,10 @@ def test_a_job_the_printer_pauses_for_an_error_is_paused_for_octoprint(link):
     assert say(link, "M24") == ["ok"]
     heard: list[str] = []
     deadline = time.monotonic() + 60
+    told = say(link, "M27")[0]
     while "//action:paused" not in heard:
         assert time.monotonic() < deadline, heard
+        told = say(link, "M27")[0]
         heard += say(link, "M105")
     assert any("nozzle 1 thermistor" in line for line in heard)
     while link.printer.status().pause != "paused":
@@ -372,6 +374,7 @@ def test_a_job_the_printer_pauses_for_an_error_is_paused_for_octoprint(link):
         time.sleep(0.02)
     heard = say(link, "M105") + say(link, "M27")
     assert "//action:paused" not in heard  # told once
+    assert told in heard  # the position OctoPrint last heard: a paused print stays put
     for line in ("M25", "M27", "M26 S0"):  # OctoPrint's Cancel
         say(link, line)
     assert link.printer.status().job is None

@@ -263,8 +263,16 @@ def test_octoprint_drives_a_robox(rig, tmp_path):
     op.until("Paused for the error", lambda: op.state() == "Paused", timeout=60)
     op.call("POST", "/api/job", {"command": "cancel"})
     op.until("Operational after cancel", lambda: op.state() == "Operational", timeout=60)
-    temperature = op.call("GET", "/api/printer")["temperature"]
-    assert temperature["tool0"]["target"] == 0  # the aborted job's heaters are off
+
+    # --- a cancelled job's heaters are off, and OctoPrint shows them off
+    heats = b"M104 S160\n" + b"G4 S2\n" * 60
+    op.upload_to_card("heats.gcode", heats, print_it=True)
+    op.until("the job heating tool 0", lambda: op.call("GET", "/api/printer")
+             ["temperature"]["tool0"]["target"] == 160, timeout=60, every=0.2)
+    op.call("POST", "/api/job", {"command": "cancel"})
+    op.until("Operational after cancel", lambda: op.state() == "Operational", timeout=60)
+    op.until("tool 0's target gone with the job", lambda: op.call("GET", "/api/printer")
+             ["temperature"]["tool0"]["target"] == 0, timeout=30, every=0.2)
 
     # --- the card holds the job as robox-cli would have stored it
     op.disconnect()
