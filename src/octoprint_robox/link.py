@@ -286,9 +286,10 @@ class RoboxLink:
 
     def _position(self, status) -> str:
         """`SD printing byte` for the job's line. While OctoPrint has it paused (or was
-        told the printer paused it), the position it last heard: OctoPrint polls a paused card print and takes a
-        position that has moved on for a print restarted at the printer, and a Robox
-        finishes the moves under way before it stands still."""
+        told the printer paused it), the position it last heard: OctoPrint polls a
+        paused card print and takes a position that has moved on for a print restarted
+        at the printer, and a Robox finishes the moves under way before it stands
+        still."""
         lines = self._lines.get(status.job, 0)
         size = self._sizes.get(status.job, 0)
         if lines and size:  # the job's line, as the bytes of the file it has run
