@@ -10,7 +10,9 @@ input, and inputs read with a plain one-line refusal.
 - through a symbolic link, the file it points to is replaced and the link stays;
 - a regular file with other names (hard links) is rewritten in place, so that every
   name sees the new content (a rename would leave the other names on the old one);
-- a device node or FIFO is written to as a stream, never replaced.
+- a device node or FIFO is written to as a stream, never replaced;
+- `-` is standard output, written once the whole output is made (a command that
+  fails writes nothing there either).
 
 An error while writing names the user's path, never the temporary one.
 """
@@ -21,6 +23,7 @@ import contextlib
 import os
 import shutil
 import stat
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -57,6 +60,28 @@ def _fsync_file(path: str | os.PathLike) -> None:
         os.close(fd)
 
 
+STDOUT = "-"  # an output path that means standard output
+
+
+def is_stdout(path: str | os.PathLike) -> bool:
+    return os.fspath(path) == STDOUT
+
+
+@contextlib.contextmanager
+def _to_stdout() -> Iterator[str]:
+    """A temporary file whose content goes to standard output once it is written."""
+    fd, temp = tempfile.mkstemp(prefix=".robox-stdout.", suffix=".tmp")
+    os.close(fd)
+    try:
+        yield temp
+        with open(temp, "rb") as source:
+            shutil.copyfileobj(source, sys.stdout.buffer, 1 << 20)
+        sys.stdout.buffer.flush()
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(temp)
+
+
 @contextlib.contextmanager
 def replacing(path: str | os.PathLike) -> Iterator[str]:
     """Yield a temporary path; once the block has written it, the file `path` names
@@ -65,6 +90,10 @@ def replacing(path: str | os.PathLike) -> Iterator[str]:
     replaced one keeps its own."""
     from robox.errors import ImageError
 
+    if is_stdout(path):
+        with _to_stdout() as temp:
+            yield temp
+        return
     target = Path(os.path.realpath(path))
     try:
         info = os.stat(target)
@@ -108,6 +137,8 @@ def refuse_overwriting(output: str | os.PathLike, *inputs: str | os.PathLike) ->
     through a link: the command would destroy what it reads."""
     from robox.errors import UsageError
 
+    if is_stdout(output):
+        return  # (a shell redirection onto an input has emptied it before we start)
     try:
         out = os.stat(output)
     except OSError:

@@ -142,3 +142,27 @@ def test_sdcard_get_by_the_output_equal_to_a_link_of_another_card(files, tmp_pat
     out = tmp_path / "part.out"
     assert run("sdcard", "get", files["card"], "part", "-o", out).exit_code == 0
     assert out.read_bytes() == get_file(files["card"], "part")
+
+
+@pytest.mark.parametrize("name", ["card", "image", "text", "gcode"])
+def test_dash_is_standard_output_with_the_report_on_stderr(files, tmp_path, monkeypatch, name):
+    monkeypatch.chdir(tmp_path)
+    to_file = tmp_path / "out.file"
+    assert run(*commands(files, to_file)[name]).exit_code == 0
+    result = CliRunner().invoke(cli, [str(a) for a in commands(files, "-")[name]])
+    assert result.exit_code == 0, result.output
+    assert result.stdout_bytes == to_file.read_bytes()  # the output alone, whole
+    assert not (tmp_path / "-").exists()
+
+
+def test_eeprom_new_to_standard_output(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(cli, ["eeprom", "new", "reel", "-o", "-", "--set",
+                                      "filament_diameter=1.75"])
+    assert result.exit_code == 0, result.output
+    assert len(result.stdout_bytes) == 512
+    assert result.stderr.strip() == "-: new reel EEPROM, both banks valid"
+    dump = tmp_path / "reel.eeprom"
+    dump.write_bytes(result.stdout_bytes)
+    shown = json.loads(run("eeprom", "show", dump, "--json").output)
+    assert shown["fields"]["filament_diameter"]["value"] == 1.75

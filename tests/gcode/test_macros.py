@@ -80,8 +80,8 @@ def test_an_automaker_start_macro_expands_through_roboxise(macros, tmp_path):
                  "--json")
     assert result.exit_code == 0, result.output
     assert json.loads(result.output)["macros"] == 4
-    assert out.read_bytes() == (b"M83\rG28 Y\rG28 X\rG28 Z\rT0\rG1 D2 F400\rT1\rG1 E2 F400\r"
-                                b"G0 Z5\rG28 Z\rG0 X190\rG28 Z\r")
+    assert out.read_bytes() == (b"M83\nG28 Y\nG28 X\nG28 Z\nT0\nG1 D2 F400\nT1\nG1 E2 F400\n"
+                                b"G0 Z5\nG28 Z\nG0 X190\nG28 Z\n")
 
 
 def test_a_file_made_only_of_includes_is_a_job(macros, tmp_path):
@@ -90,7 +90,7 @@ def test_a_file_made_only_of_includes_is_a_job(macros, tmp_path):
                     b"Macro:Level_Gantry_(2-points)\r\nMacro:Purge Material\r\n")
     out = tmp_path / "only.robox"
     assert run("roboxise", job, "-o", out, "--macros", macros).exit_code == 0
-    assert out.read_bytes() == b"G28 Y\rG28 X\rG28 Z\rG0 Z5\rG28 Z\rG0 X190\rG28 Z\rG4 P100\r"
+    assert out.read_bytes() == b"G28 Y\nG28 X\nG28 Z\nG0 Z5\nG28 Z\nG0 X190\nG28 Z\nG4 P100\n"
 
 
 def test_send_job_expands_macros_and_never_sends_a_macro_line(macros, tmp_path):

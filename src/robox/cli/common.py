@@ -58,8 +58,8 @@ class RoboxGroup(click.Group):
 json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 
 
-def emit_json(data: object) -> None:
-    click.echo(json.dumps(data, indent=2))
+def emit_json(data: object, err: bool = False) -> None:
+    click.echo(json.dumps(data, indent=2), err=err)
 
 
 def at_terminal() -> bool:
@@ -87,9 +87,11 @@ def guard_output(output: str, inputs: tuple[str, ...] = (), writing: str = "",
     """Before anything is written to `output`: refuse it when it is one of `inputs`
     (through a link too), and ask before writing `writing` over a file that is a card
     image or an EEPROM dump of another kind."""
-    from robox.fileio import refuse_overwriting
+    from robox.fileio import is_stdout, refuse_overwriting
     from robox.offline.identify import identify
 
+    if is_stdout(output):
+        return
     refuse_overwriting(output, *inputs)
     kind = identify(output)
     if kind is not None and kind != writing:

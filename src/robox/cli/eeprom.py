@@ -7,7 +7,7 @@ import sys
 import click
 
 from robox.cli.common import EXIT_PROBLEM, emit_json, guard_output, json_option, yes_option
-from robox.fileio import write_atomically
+from robox.fileio import is_stdout, write_atomically
 from robox.offline import eeprom as dumps
 
 set_option = click.option("--set", "assignments", multiple=True, metavar="FIELD=VALUE",
@@ -23,7 +23,7 @@ def eeprom() -> None:
 @eeprom.command("new")
 @click.argument("kind", type=KINDS)
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False),
-              help="The dump file to write.")
+              help="The dump file to write (- for standard output).")
 @set_option
 @yes_option
 @json_option
@@ -35,9 +35,10 @@ def new_cmd(kind: str, output: str, assignments: tuple[str, ...], yes: bool,
     guard_output(output, (), "an EEPROM dump", yes)
     write_atomically(output, dump)
     if as_json:
-        emit_json({"dump": output, "kind": kind, "set": list(assignments)})
+        emit_json({"dump": output, "kind": kind, "set": list(assignments)},
+                  err=is_stdout(output))
     else:
-        click.echo(f"{output}: new {kind} EEPROM, both banks valid")
+        click.echo(f"{output}: new {kind} EEPROM, both banks valid", err=is_stdout(output))
 
 
 @eeprom.command("show")

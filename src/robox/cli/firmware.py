@@ -7,6 +7,7 @@ import sys
 import click
 
 from robox.cli.common import EXIT_PROBLEM, emit_json, guard_output, json_option, yes_option
+from robox.fileio import is_stdout
 from robox.formats.firmware import DEFAULT_OFFSET
 from robox.offline import firmware as images
 
@@ -61,7 +62,8 @@ def verify_cmd(file: str, offset_text: str, as_json: bool) -> None:
 
 @firmware.command("to-sd")
 @click.argument("bin_file", metavar="BIN", type=click.Path(dir_okay=False, readable=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False),
+              help="The file to write (- for standard output).")
 @yes_option
 @json_option
 def to_sd_cmd(bin_file: str, output: str, yes: bool, as_json: bool) -> None:
@@ -69,14 +71,16 @@ def to_sd_cmd(bin_file: str, output: str, yes: bool, as_json: bool) -> None:
     guard_output(output, (bin_file,), "an SD firmware file", yes)
     result = images.to_sd(bin_file, output)
     if as_json:
-        emit_json(result)
+        emit_json(result, err=is_stdout(output))
         return
-    click.echo(f"{output}: {result['characters']} characters from {result['bytes']} bytes")
+    click.echo(f"{output}: {result['characters']} characters from {result['bytes']} bytes",
+               err=is_stdout(output))
 
 
 @firmware.command("from-sd")
 @click.argument("file", type=click.Path(dir_okay=False, readable=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, readable=False),
+              help="The file to write (- for standard output).")
 @yes_option
 @json_option
 def from_sd_cmd(file: str, output: str, yes: bool, as_json: bool) -> None:
@@ -84,6 +88,7 @@ def from_sd_cmd(file: str, output: str, yes: bool, as_json: bool) -> None:
     guard_output(output, (file,), "a firmware image", yes)
     result = images.from_sd(file, output)
     if as_json:
-        emit_json(result)
+        emit_json(result, err=is_stdout(output))
         return
-    click.echo(f"{output}: {result['bytes']} bytes from {result['characters']} characters")
+    click.echo(f"{output}: {result['bytes']} bytes from {result['characters']} characters",
+               err=is_stdout(output))

@@ -50,7 +50,8 @@ macros_option = click.option(
 @click.command("roboxise")
 @click.argument("source", metavar="IN", type=click.Path(dir_okay=False, readable=False))
 @click.option("-o", "--output", "target", required=True, metavar="OUT",
-              type=click.Path(dir_okay=False, writable=False), help="The Robox job to write.")
+              type=click.Path(dir_okay=False, writable=False),
+              help="The Robox job to write (- for standard output).")
 @click.option("--filament-diameter", type=click.FloatRange(0.5, 5.0),
               default=DEFAULT_DIAMETER, show_default=True, help="mm, for E in mm of filament.")
 @click.option("--head", default=HEAD_DEFAULT, show_default=True,
@@ -69,6 +70,7 @@ def roboxise_cmd(source: str, target: str, filament_diameter: float, head: str,
                  no_sequences: bool, yes: bool, as_json: bool) -> None:
     """Translate a slicer's G-code IN into a Robox job OUT: E to cubic millimetres, the
     needle valve for retractions, Robox temperature codes, start and end sequences."""
+    from robox.fileio import is_stdout
     from robox.gcode import Options, roboxise_file
 
     guard_output(target, (source,), "a Robox job", yes)
@@ -77,28 +79,33 @@ def roboxise_cmd(source: str, target: str, filament_diameter: float, head: str,
                       nozzle=nozzle, macros=macros, sequences=not no_sequences, valve=valve,
                       ejection=parse_ejection(ejection))
     summary = roboxise_file(source, target, options)
+    to_stdout = is_stdout(target)  # the job on standard output: the report on stderr
+
+    def say(text: str) -> None:
+        click.echo(text, err=to_stdout)
+
     data = summary.as_dict()
     if as_json:
-        emit_json(data)
+        emit_json(data, err=to_stdout)
         return
     if summary.passthrough:
-        click.echo(f"{source}: already a Robox job ({summary.slicer}); written as it is")
+        say(f"{source}: already a Robox job ({summary.slicer}); written as it is")
     else:
-        click.echo(f"{source}: {summary.slicer} G-code, E in {summary.e_mode}")
-    click.echo(f"lines: {summary.lines_in} in, {summary.lines_out} out")
+        say(f"{source}: {summary.slicer} G-code, E in {summary.e_mode}")
+    say(f"lines: {summary.lines_in} in, {summary.lines_out} out")
     for extruder, volume in summary.volume_mm3.items():
         if volume:
-            click.echo(f"extruder {extruder}: {volume:.1f} mm3")
+            say(f"extruder {extruder}: {volume:.1f} mm3")
     if not summary.passthrough:
-        click.echo(f"valve openings: {summary.valve_cycles}; retractions: "
+        say(f"valve openings: {summary.valve_cycles}; retractions: "
                    f"{summary.retractions}; nozzle: "
                    f"{'by tool' if summary.nozzle is None else summary.nozzle}"
                    + (f" first, {summary.nozzle_changes} changes by extrusion width"
                       if summary.nozzle_changes else ""))
     if summary.macros:
-        click.echo(f"macros expanded: {summary.macros}")
+        say(f"macros expanded: {summary.macros}")
     dropped = ", ".join(f"{code} x{n}" for code, n in sorted(summary.dropped.items()))
-    click.echo(f"dropped: {dropped or 'none'}")
+    say(f"dropped: {dropped or 'none'}")
 
 
 def _duration(seconds: float) -> str:

@@ -50,28 +50,34 @@ def _lines(source: str | os.PathLike) -> Iterator[tuple[Iterator[bytes], Detecte
         yield split_lines(read_chunks(handle)), detect(head, tail)
 
 
-def _write_job(lines: Iterable[bytes], target: str | os.PathLike) -> None:
-    """Lines ended with CR, as they go to the card, to a temporary file renamed into
-    place once all are written."""
+CARD_LINE_END = b"\r"  # a job's lines as they go to the card (protocol.md)
+FILE_LINE_END = b"\n"  # and in a file a person keeps
+
+
+def _write_job(lines: Iterable[bytes], target: str | os.PathLike,
+               end: bytes = CARD_LINE_END) -> None:
+    """Lines ended with `end` to a temporary file renamed into place once all are
+    written."""
     with replacing(target) as temp, open(temp, "wb") as out:
         batch = []
         for line in lines:
             batch.append(line)
             if len(batch) >= 4096:
-                out.write(b"\r".join(batch) + b"\r")
+                out.write(end.join(batch) + end)
                 batch.clear()
         if batch:
-            out.write(b"\r".join(batch) + b"\r")
+            out.write(end.join(batch) + end)
 
 
 def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
-                  options: Options) -> Summary:
-    """Translate `source` into the Robox job `target`. Streams; `target` appears only
-    when the whole file translated."""
+                  options: Options, end: bytes = FILE_LINE_END) -> Summary:
+    """Translate `source` into the Robox job `target`, its lines ended with `end` (LF
+    for a person's file; send-job's copy for the card, CR). Streams; `target` appears
+    only when the whole file translated."""
     with _lines(source) as (lines, detected):
         refuse_overwriting(target, source)
         translated, summary = translate(lines, options, detected)
-        _write_job(translated, target)
+        _write_job(translated, target, end)
     return summary
 
 
@@ -139,7 +145,7 @@ def job_file(source: str | os.PathLike, options: Options | None) -> Iterator[Job
         if options is None:
             strip_file(source, target)
         else:
-            summary = roboxise_file(source, target, options)
+            summary = roboxise_file(source, target, options, CARD_LINE_END)
         digest, lines, longest, run = hashlib.sha1(), 0, 0, 0
         with open(target, "rb") as handle:
             for chunk in read_chunks(handle):
