@@ -80,10 +80,18 @@ def test_sim_starts_a_printer_that_stays_on_across_commands(state, tmp_path):
     assert json.loads(shown.stdout) | {"started": None} == {
         "state": str(state), "served": True, "pid": record["pid"], "pty": record["pty"],
         "started": None, "speed": None}
+    # listed with the unique ID and firmware the printer itself answers (0xb2, 0xb4)
+    with open_printer(f"sim:{state}") as printer:
+        unique, revision = printer.unique_id(), printer.revision()
     listed = json.loads(run("printers", "--json").stdout)
     assert listed == [{"kind": "sim", "device": f"sim:{state}", "state": str(state),
                        "pid": record["pid"], "pty": record["pty"],
-                       "started": record["started"]}]
+                       "started": record["started"], "unique_id": unique,
+                       "revision": revision}]
+    assert unique.startswith("RBXSIM") and revision == "r776sim"
+    assert run("printers").stdout.splitlines()[-1] == (
+        f"{unique}  firmware {revision}  (sim:{state}: virtual, served on {record['pty']} "
+        f"by PID {record['pid']})")
 
     # the job runs to its end on the served printer between commands
     deadline = time.monotonic() + 60

@@ -71,7 +71,8 @@ def printers_cmd(as_json: bool) -> None:
         click.echo(f"{p['unique_id']}  firmware {p['revision']}  (bus {p['bus']}, "
                    f"address {p['address']})")
     for v in virtual:
-        click.echo(f"{v['device']}  virtual printer served on {v['pty']} by PID {v['pid']}")
+        click.echo(f"{v['unique_id'] or '?'}  firmware {v['revision'] or '?'}  "
+                   f"({v['device']}: virtual, served on {v['pty']} by PID {v['pid']})")
 
 
 @click.command("status")

@@ -80,6 +80,16 @@ def image_revision(image: bytes) -> str | None:
     return raw.split(b"\0", 1)[0].decode("ascii", "replace").strip() or None
 
 
+def flash_identity(flash: bytes) -> tuple[str, str | None]:
+    """A flash dump's unique ID (its last page, as 0xb2 reports it) and the revision
+    its image declares (None: it declares none)."""
+    raw = bytes(b & 0x7F for b in flash[UNIQUE_ID_PAGE * PAGE_SIZE :
+                                        (UNIQUE_ID_PAGE + 1) * PAGE_SIZE])
+    unique = raw.split(b"\0", 1)[0].decode("ascii", "replace").strip()
+    image = bytes(flash[IMAGE_PAGES.start * PAGE_SIZE : IMAGE_PAGES.stop * PAGE_SIZE])
+    return unique, image_revision(image[: flashed_image_pages(image) * PAGE_SIZE])
+
+
 def flashed_image_pages(flash: bytes) -> int:
     """Pages of the image in a flash dump: up to the last page in 0..506 not erased."""
     image = memoryview(flash)[IMAGE_PAGES.start * PAGE_SIZE : IMAGE_PAGES.stop * PAGE_SIZE]

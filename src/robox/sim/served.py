@@ -76,7 +76,8 @@ def served_record(directory: Path) -> dict | None:
 
 
 def list_served() -> list[dict]:
-    """Every printer served now: {"state", "pid", "pty", "started"}."""
+    """Every printer served now: {"state", "pid", "pty", "started", "unique_id",
+    "revision"}."""
     found = []
     try:
         notes = sorted(runtime_dir().iterdir())
@@ -94,8 +95,22 @@ def list_served() -> list[dict]:
             continue
         if record.get("pty"):
             found.append({"state": str(directory), "pid": record.get("pid"),
-                          "pty": record["pty"], "started": record.get("started")})
+                          "pty": record["pty"], "started": record.get("started"),
+                          **_identity(directory)})
     return found
+
+
+def _identity(directory: Path) -> dict:
+    """The served printer's unique ID and firmware revision, from its flash dump (read
+    without its port, which another program may hold): what 0xb2 and 0xb4 answer."""
+    from robox.firmware.main import DEFAULT_REVISION
+    from robox.formats.firmware import flash_identity
+
+    try:
+        unique, revision = flash_identity((directory / "flash.bin").read_bytes())
+    except OSError:
+        return {"unique_id": None, "revision": None}
+    return {"unique_id": unique or None, "revision": revision or DEFAULT_REVISION}
 
 
 def _spawn_detached(argv: list[str], log: Path) -> int:
