@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -180,7 +181,7 @@ def test_a_closed_pipe_ends_quietly():
                                 stderr=subprocess.PIPE, timeout=60)
     finally:
         os.close(write_end)
-    assert result.returncode != 0
+    assert result.returncode == 128 + signal.SIGPIPE  # as a Unix tool killed by SIGPIPE
     assert result.stderr == b""
 
 
@@ -273,3 +274,52 @@ def test_version_names_the_firmware_models_build():
     n = len(compiled_modules())
     kind = "pure Python" if n == 0 else f"compiled core ({n} of {len(MODULES)} modules)"
     assert result.output == f"robox-cli, version 0.1.0; firmware model: {kind}\n"
+
+
+def test_away_from_a_terminal_send_job_wait_says_how_far_it_got(tmp_path, monkeypatch):
+    """A terminal shows bars; a log or a pipe gets a line a minute (here: every poll)."""
+    from robox.cli import common
+
+    monkeypatch.setattr(common, "PROGRESS_EVERY_S", 0.0)
+    job = tmp_path / "part.gcode"
+    job.write_bytes(b"G28 X Y\n" + b"G1 X20 Y20 F3000\nG1 X40 Y40\n" * 300)
+    result = CliRunner().invoke(cli, ["--device", f"sim-once:{tmp_path / 'p'}", "send-job",
+                                      str(job), "--raw", "--id", "part", "--wait"])
+    assert result.exit_code == 0, result.output
+    size = len(job.read_bytes())  # LF to CR: the same number of bytes
+    uploads = [line for line in result.stderr.splitlines() if line.startswith("uploading")]
+    prints = [line for line in result.stderr.splitlines() if line.startswith("printing")]
+    assert uploads and uploads[-1].startswith("uploading part: ")
+    assert uploads[-1].endswith(f" of {size} bytes (100%)")
+    assert prints and all(line.startswith("printing part: ") and " of 601 lines (" in line
+                          for line in prints)
+
+
+def test_ctrl_c_during_an_upload_says_what_it_left_and_resume_goes_on(tmp_path):
+    """SIGINT mid-upload to a served printer (paced, so the upload takes a few seconds):
+    one line saying where it stopped and how to go on, status 130; --resume finishes it."""
+    from tests.sim.serving import served
+
+    state = tmp_path / "printer"
+    job = tmp_path / "big.gcode"
+    job.write_bytes(b"G28 X Y\n" + b"G4 P1\n" * 40_000)
+    env = {**os.environ, "ROBOX_DEVICE": ""}
+    with served(state, speed=1) as pty:
+        cli_ = [sys.executable, "-m", "robox.cli", "--device", f"serial:{pty}", "send-job",
+                str(job), "--raw", "--id", "big"]
+        sending = subprocess.Popen(cli_, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                   env=env)
+        time.sleep(1.5)
+        sending.send_signal(signal.SIGINT)
+        _, err = sending.communicate(timeout=60)
+        assert sending.returncode == 130, err.decode()
+        line = err.decode().strip().splitlines()[-1]
+        assert line.startswith("robox-cli: error: interrupted after ")
+        assert line.endswith(f"of {len(job.read_bytes())} bytes of the upload; the printer "
+                             "keeps it open, and prints what it holds if the job had begun: "
+                             f"`robox-cli send-job {job} --resume` goes on from where it "
+                             "stopped, `robox-cli abort` ends the job")
+        resumed = subprocess.run([*cli_, "--resume", "--json"], capture_output=True,
+                                 env=env, timeout=300)
+        assert resumed.returncode == 0, resumed.stderr.decode()
+        assert json.loads(resumed.stdout)["resumed_from_byte"] > 0

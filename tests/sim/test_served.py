@@ -66,6 +66,9 @@ def test_sim_starts_a_printer_that_stays_on_across_commands(state, tmp_path):
     assert sent.exit_code == 0, sent.output
     assert json.loads(sent.stdout)["printing"] is True
     assert "started the virtual printer in the background" in sent.stderr
+    # the hint names this printer's state directory, so following it stops this one
+    assert sent.stderr.rstrip().endswith(f"`robox-cli sim stop --state {state}` switches "
+                                         "it off")
     record = _record(state)
     assert record["role"] == "serve" and alive(record["pid"])
 
@@ -212,3 +215,20 @@ def test_a_killed_server_is_replaced_by_the_next_command(state):
     assert second != first and alive(second)
     assert json.loads(run("sim", "stop", "--state", state, "--json").stdout) == {
         "state": str(state), "stopped": True, "pid": second}
+
+
+def test_sim_commands_take_the_printer_device_names(state, tmp_path):
+    """`--device sim:DIR sim stop` stops the printer of DIR (it used to stop the
+    per-user one); a --state naming another printer is refused."""
+    assert run("--device", f"sim:{state}", "status").exit_code == 0
+    pid = _record(state)["pid"]
+    shown = run("--device", f"sim:{state}", "sim", "status", "--json")
+    assert json.loads(shown.stdout)["state"] == str(state)
+    other = tmp_path / "other"
+    clash = CliRunner().invoke(cli, ["--device", f"sim:{state}", "sim", "stop", "--state",
+                                     str(other)])
+    one_line_error(clash, 2, "name two printers")
+    assert alive(pid)
+    stopped = run("--device", f"sim:{state}", "sim", "stop", "--json")
+    assert json.loads(stopped.stdout) == {"state": str(state), "stopped": True, "pid": pid}
+    assert not alive(pid)

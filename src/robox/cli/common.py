@@ -14,6 +14,13 @@ EXIT_PROBLEM = 1
 EXIT_USAGE = 2
 
 
+EXIT_INTERRUPTED = 130
+
+
+class Interrupted(RoboxError):
+    """Ctrl-C, with what it left behind and what the user can do (exit status 130)."""
+
+
 def fail(message: str, status: int = EXIT_PROBLEM) -> None:
     click.echo(f"robox-cli: error: {message}", err=True)
     sys.exit(status)
@@ -34,7 +41,7 @@ class RoboxGroup(click.Group):
         except click.ClickException as exc:
             fail(exc.format_message(), exc.exit_code)
         except (click.Abort, KeyboardInterrupt):
-            fail("interrupted", 130)
+            fail("interrupted", EXIT_INTERRUPTED)
         except BrokenPipeError:
             from robox.launch import quiet_exit_after_broken_pipe
 
@@ -46,10 +53,14 @@ class RoboxGroup(click.Group):
             return super().invoke(ctx)
         except UsageError as exc:
             fail(str(exc), EXIT_USAGE)
+        except Interrupted as exc:
+            fail(str(exc), EXIT_INTERRUPTED)
         except RoboxError as exc:
             fail(str(exc))
-        except BrokenPipeError:
-            raise
+        except BrokenPipeError:  # (here: click's own handling would exit 1)
+            from robox.launch import quiet_exit_after_broken_pipe
+
+            quiet_exit_after_broken_pipe()
         except OSError as exc:
             where = f"{exc.filename}: " if exc.filename else ""
             fail(f"{where}{exc.strerror or exc}")
@@ -97,3 +108,28 @@ def guard_output(output: str, inputs: tuple[str, ...] = (), writing: str = "",
     if kind is not None and kind != writing:
         confirm(yes, f"{output} is {kind}; write {writing or 'the output'} over it")
 
+
+
+PROGRESS_EVERY_S = 60.0  # away from a terminal: a progress line a minute
+
+
+class Ticker:
+    """Progress away from a terminal (a log, a pipe): one line on stderr at most every
+    `every_s` of wall time (default PROGRESS_EVERY_S), where a terminal shows a bar."""
+
+    def __init__(self, label: str, total: int, unit: str, every_s: float | None = None,
+                 enabled: bool = True):
+        import time
+
+        self.label, self.total, self.unit = label, total, unit
+        self.every_s = PROGRESS_EVERY_S if every_s is None else every_s
+        self.enabled = enabled
+        self._clock = time.monotonic
+        self._last = self._clock()
+
+    def update(self, done: int) -> None:
+        if not self.enabled or self._clock() - self._last < self.every_s:
+            return
+        self._last = self._clock()
+        share = f" ({100 * done / self.total:.0f}%)" if self.total else ""
+        click.echo(f"{self.label}: {done} of {self.total} {self.unit}{share}", err=True)

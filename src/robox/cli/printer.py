@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import shlex
 import sys
 import time
 from dataclasses import asdict
@@ -10,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from robox.cli.common import confirm, emit_json, json_option, yes_option
+from robox.cli.common import Interrupted, Ticker, confirm, emit_json, json_option, yes_option
 from robox.cli.gcode import (
     ejection_option,
     macros_option,
@@ -205,7 +206,7 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
                            f"{t.volume_mm3['E'] + t.volume_mm3['D']:.0f} mm3, "
                            f"{t.valve_cycles} valve openings (--raw sends it as it is)",
                            err=True)
-            summary = _upload(printer, file, job, file_id, resume, wait, quiet)
+            summary = _upload(printer, file, job, file_id, resume, wait, quiet, as_json)
     if as_json:
         emit_json(summary)
         return
@@ -241,8 +242,26 @@ def _minutes(seconds: float) -> str:
     return f"{seconds / 60:.1f} min" if seconds >= 60 else f"{seconds:.1f} s"
 
 
+def _interrupted_upload(printer, file: str, done: int, size: int) -> str:
+    said = f"interrupted after {done} of {size} bytes of the upload"
+    if getattr(printer, "virtual", None) is not None:
+        return (f"{said}; this printer runs in this command only (--device sim-once) and "
+                "is switched off with it: the partial upload is lost")
+    return (f"{said}; the printer keeps it open, and prints what it holds if the job had "
+            f"begun: `robox-cli send-job {shlex.quote(file)} --resume` goes on from where it "
+            "stopped, `robox-cli abort` ends the job")
+
+
+def _interrupted_wait(printer, name: str) -> str:
+    if getattr(printer, "virtual", None) is not None:
+        return ("interrupted; this printer runs in this command only (--device sim-once) "
+                f"and is switched off with it, {name} with it")
+    return (f"interrupted: stopped following {name}, which the printer goes on printing "
+            "(`robox-cli status` shows it, `robox-cli abort` ends it)")
+
+
 def _upload(printer, file: str, job, file_id: str | None, resume: bool,
-            wait: bool, quiet: bool) -> dict:
+            wait: bool, quiet: bool, as_json: bool = False) -> dict:
     """Send the job file (a chunk at a time) and, with `wait`, follow its print."""
     name = default_id(Path(file).stem, job.sha1) if file_id is None else file_id
     if len(name.encode("ascii", "replace")) > 16:
@@ -259,14 +278,20 @@ def _upload(printer, file: str, job, file_id: str | None, resume: bool,
         with click.progressbar(length=job.size, label=f"uploading {name}", file=sys.stderr,
                                hidden=quiet) as bar:
             done_bytes = [0]
+            ticker = Ticker(f"uploading {name}", job.size, "bytes",
+                            enabled=quiet and not as_json)
 
             def progress(done: int, total: int) -> None:
                 bar.update(done - done_bytes[0])
                 done_bytes[0] = done
+                ticker.update(done)
 
             try:
                 sent = printer.send_file(source, name, resume=resume, progress=progress,
                                          notice=lambda message: click.echo(message, err=True))
+            except KeyboardInterrupt:
+                raise Interrupted(_interrupted_upload(printer, file, done_bytes[0],
+                                                      job.size)) from None
             except Disconnected:
                 raise RoboxError(f"the printer was disconnected after {done_bytes[0]} of "
                                  f"{job.size} bytes; run the same command with --resume to "
@@ -285,7 +310,10 @@ def _upload(printer, file: str, job, file_id: str | None, resume: bool,
                    "already_stored": sent.already_stored, "printing": sent.printing}
         wait = wait and sent.printing
         if wait:
-            _follow(printer, name, job.lines, catch_up_lines(source), quiet)
+            try:
+                _follow(printer, name, job.lines, catch_up_lines(source), quiet, as_json)
+            except KeyboardInterrupt:
+                raise Interrupted(_interrupted_wait(printer, name)) from None
     if wait:
         after = _reels(printer)
         summary["print_time_s"] = round(time.monotonic() - started, 1)
@@ -345,7 +373,8 @@ class PausedForError(RoboxError):
     """The print being followed was paused by the printer for an error."""
 
 
-def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool) -> None:
+def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool,
+            as_json: bool = False) -> None:
     """Follow the print to its end. Asking for the error report on every poll keeps the
     printer counting a host as connected, as AutoMaker did (no flush-needed or slip
     pauses that a host handles). The upload's catch-up pauses are resumed; a pause the
@@ -354,6 +383,7 @@ def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool) -
     wall time (a person resumes it), except on a printer in this process, which no
     other command can reach."""
     said = False
+    ticker = Ticker(f"printing {name}", lines, "lines", enabled=quiet and not as_json)
     with click.progressbar(length=lines, label=f"printing {name}", file=sys.stderr,
                            hidden=quiet) as bar:
         shown = 0
@@ -364,6 +394,7 @@ def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool) -
                 return
             bar.update(max(0, status.line - shown))
             shown = max(shown, status.line)
+            ticker.update(shown)
             why = printer.paused_for(name, whole, status)
             if why == "catch-up":
                 printer.resume_catch_up()

@@ -17,7 +17,22 @@ STATE_OPTION = click.option("--state", "state_dir", type=click.Path(file_okay=Fa
 
 
 def _directory(state_dir: str | None) -> Path:
-    return Path(os.path.abspath(state_dir)) if state_dir else default_state_dir()
+    """The state directory: --state, else the one `--device sim:DIR` (or sim-once:DIR,
+    or $ROBOX_DEVICE) names, else the per-user virtual printer's."""
+    from robox.host.devices import ENVIRONMENT
+
+    root = click.get_current_context(silent=True)
+    obj = (root.find_root().obj if root is not None else None) or {}
+    device = obj.get("device") or os.environ.get(ENVIRONMENT) or ""
+    kind, _, rest = device.partition(":")
+    named = Path(os.path.abspath(rest)) if kind in ("sim", "sim-once") and rest else None
+    if state_dir:
+        chosen = Path(os.path.abspath(state_dir))
+        if named is not None and named != chosen and obj.get("device"):
+            raise UsageError(f"--device {device} and --state {state_dir} name two printers; "
+                             "give one")
+        return chosen
+    return named if named is not None else default_state_dir()
 
 
 @click.group()
@@ -52,7 +67,8 @@ def serve_cmd(state_dir: str | None, realtime: bool, speed: float | None,
         record = served.start(directory, pace)
         click.echo(record["pty"])
         click.echo(f"serving the virtual printer for {directory} in the background "
-                   f"(PID {record['pid']}); `robox-cli sim stop` switches it off", err=True)
+                   f"(PID {record['pid']}); {served.stop_hint(directory)} switches it off",
+                   err=True)
         return
     serve_forever(directory, pace, lambda path: click.echo(path),
                   lambda message: click.echo(message, err=True))

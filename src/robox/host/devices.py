@@ -221,9 +221,14 @@ def served_idle(speed: float | None) -> Callable[[float], None]:
     return lambda seconds: time.sleep(seconds / speed)
 
 
-def _started(record: dict) -> None:
-    print(f"robox-cli: started the virtual printer in the background (PID {record['pid']}, "
-          f"{record['pty']}); `robox-cli sim stop` switches it off", file=sys.stderr)
+def _started(directory: Path) -> Callable[[dict], None]:
+    def say(record: dict) -> None:
+        from robox.sim.served import stop_hint
+
+        print(f"robox-cli: started the virtual printer in the background (PID "
+              f"{record['pid']}, {record['pty']}); {stop_hint(directory)} switches it off",
+              file=sys.stderr)
+    return say
 
 
 @contextlib.contextmanager
@@ -244,7 +249,7 @@ def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000,
             with _sim(directory, timeout_ms) as printer:
                 yield printer
             return
-        printer = _served(directory, timeout_ms, _started, take_over)
+        printer = _served(directory, timeout_ms, _started(directory), take_over)
     elif kind == "usb":
         printer = _select_usb(rest or None, timeout_ms, take_over)
     elif kind == "serial":

@@ -100,6 +100,16 @@ def list_served() -> list[dict]:
     return found
 
 
+def stop_hint(directory: Path) -> str:
+    """The command that switches the printer of `directory` off, as a user types it."""
+    import shlex
+
+    from robox.sim.printer import default_state_dir
+
+    where = "" if directory == default_state_dir() else f" --state {shlex.quote(str(directory))}"
+    return f"`robox-cli sim stop{where}`"
+
+
 def _identity(directory: Path) -> dict:
     """The served printer's unique ID and firmware revision, from its flash dump (read
     without its port, which another program may hold): what 0xb2 and 0xb4 answer."""
