@@ -19,16 +19,21 @@ STATE_OPTION = click.option("--state", "state_dir", type=click.Path(file_okay=Fa
 def _directory(state_dir: str | None) -> Path:
     """The state directory: --state, else the one `--device sim:DIR` (or sim-once:DIR,
     or $ROBOX_DEVICE) names, else the per-user virtual printer's."""
+    from click.core import ParameterSource
+
     from robox.host.devices import ENVIRONMENT
 
-    root = click.get_current_context(silent=True)
-    obj = (root.find_root().obj if root is not None else None) or {}
-    device = obj.get("device") or os.environ.get(ENVIRONMENT) or ""
+    ctx = click.get_current_context(silent=True)
+    root = ctx.find_root() if ctx is not None else None
+    device = ((root.obj or {}).get("device") if root is not None else None) or \
+        os.environ.get(ENVIRONMENT) or ""
     kind, _, rest = device.partition(":")
     named = Path(os.path.abspath(rest)) if kind in ("sim", "sim-once") and rest else None
-    if state_dir:
+    if state_dir:  # it wins over $ROBOX_DEVICE; a --device that names another is refused
         chosen = Path(os.path.abspath(state_dir))
-        if named is not None and named != chosen and obj.get("device"):
+        typed = root is not None and \
+            root.get_parameter_source("device") == ParameterSource.COMMANDLINE
+        if named is not None and named != chosen and typed:
             raise UsageError(f"--device {device} and --state {state_dir} name two printers; "
                              "give one")
         return chosen
