@@ -24,8 +24,7 @@ from model import host_text, sliced_gcode  # noqa: E402
 from robox.hardware.machine import E  # noqa: E402
 from robox.native import build  # noqa: E402
 from robox.sim.printer import VirtualPrinter  # noqa: E402
-from tests.firmware.test_motion import MACROS  # noqa: E402
-from tests.firmware.wire import Wire, job_text  # noqa: E402
+from tests.firmware.wire import MACROS, Wire, job_text  # noqa: E402
 
 
 def run_job(name: str, text: bytes) -> tuple[int, float, float, bool]:

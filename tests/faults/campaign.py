@@ -27,7 +27,7 @@ from robox.formats.sdcard import BLOCK_SIZE, NO_JOB
 from robox.hardware.faults import FaultPlan, Landing, Tear
 from robox.hardware.sdcard import SdCard
 from robox.hardware.storage import MemoryStorage
-from tests.conftest import pattern, read_back, upload
+from tests.cards import pattern, read_back, upload
 
 CAPACITY = 2048
 

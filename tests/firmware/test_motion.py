@@ -14,7 +14,7 @@ from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import D, E
 from robox.native import compiled_modules
 from robox.packed import vec
-from tests.firmware.wire import job_text
+from tests.firmware.wire import MACROS, job_text
 
 SPU = {"X": 133.7, "Y": 133.7, "Z": 6400.0, "E": 747.0, "B": 2500.0}
 
@@ -492,18 +492,6 @@ def test_the_reel_is_charged_the_whole_millimetres_the_job_extruded(wire):
     assert 0 <= wire.fw.position.destination[3] < 1
 
 
-MACROS = {
-    "home all": ["G28 X Y Z", "M114"],
-    "level gantry": ["G28 X Y", "G0 X20 Y75", "G28 Z", "G0 X200 Y75", "G28 Z", "G38",
-                     "G0 X113 Y75", "G28 Z"],
-    "level bed": ["G28 X Y Z", "G39", "G0 X30 Y30", "G28 Z", "G0 X190 Y30", "G28 Z",
-                  "G0 X110 Y130", "G28 Z", "G39 S0.2", "G1 X100 Y75 Z0.3 F6000"],
-    "purge": ["M104 S210", "G28 X Y Z", "M109", "G0 X10 Y10 Z0.3", "T0", "G0 B1",
-              "G1 X100 E20 F1200", "G1 B0 F150", "M104 S0"],
-    "eject stuck material": ["M104 S210", "M109", "G36 E-40 F300", "M122 E", "M104 S0"],
-    "tool changes": ["G28 X Y Z", "T0", "G0 X50 Y50 Z1", "G0 B1", "G1 X60 E2 F1200", "T1",
-                     "G0 B1", "G1 X50 E2 F1200", "T0 X55 Y55", "G0 B0"],
-}
 
 
 @pytest.mark.parametrize("name", list(MACROS))

@@ -99,3 +99,19 @@ def circle_job(count: int, heat: bool = True) -> bytes:
                      "F3000")
     lines += ["M104 S0", "M140 S0"]
     return job_text(lines)
+
+
+# AutoMaker's maintenance macros, in shape (the job lines each sends); read by the
+# motion tests and bench/motion.py, so kept here, apart from pytest
+MACROS = {
+    "home all": ["G28 X Y Z", "M114"],
+    "level gantry": ["G28 X Y", "G0 X20 Y75", "G28 Z", "G0 X200 Y75", "G28 Z", "G38",
+                     "G0 X113 Y75", "G28 Z"],
+    "level bed": ["G28 X Y Z", "G39", "G0 X30 Y30", "G28 Z", "G0 X190 Y30", "G28 Z",
+                  "G0 X110 Y130", "G28 Z", "G39 S0.2", "G1 X100 Y75 Z0.3 F6000"],
+    "purge": ["M104 S210", "G28 X Y Z", "M109", "G0 X10 Y10 Z0.3", "T0", "G0 B1",
+              "G1 X100 E20 F1200", "G1 B0 F150", "M104 S0"],
+    "eject stuck material": ["M104 S210", "M109", "G36 E-40 F300", "M122 E", "M104 S0"],
+    "tool changes": ["G28 X Y Z", "T0", "G0 X50 Y50 Z1", "G0 B1", "G1 X60 E2 F1200", "T1",
+                     "G0 B1", "G1 X50 E2 F1200", "T0 X55 Y55", "G0 B0"],
+}
