@@ -71,9 +71,9 @@ def stage(text: str, tick_s: float = 30.0):
     out = tty or sys.stderr
     started = time.monotonic()
 
-    def say(line: str) -> None:
+    def say(line: str) -> None:  # ("robox build:", apart from the one-line "robox:" notes)
         with contextlib.suppress(OSError, ValueError):
-            print(f"robox: {line}", file=out, flush=True)
+            print(f"robox build: {line}", file=out, flush=True)
 
     say(f"{text} ...")
     done = threading.Event()

@@ -38,9 +38,12 @@ def test_status_loops_beside_send_job_wait_never_break_it(tmp_path, env):
     job = tmp_path / "part.gcode"
     job.write_bytes(b"G28 X Y\n" + b"G1 X20 Y20 F6000\nG1 X150 Y100\n" * 300)
     try:
-        send = subprocess.Popen([*CLI, "--device", f"sim:{state}", "send-job", str(job),
-                                 "--raw", "--id", "part", "--wait", "--json"], env=env,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        # (a status may hold the port the moment send-job opens it: send-job waits for
+        # it, as a user running both would have it do; the status runs are refused)
+        send = subprocess.Popen([*CLI, "--wait-lock", "60", "--device", f"sim:{state}",
+                                 "send-job", str(job), "--raw", "--id", "part", "--wait",
+                                 "--json"], env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE)
         answered = refused = 0
         while send.poll() is None:
             loops = [subprocess.Popen([*CLI, "--device", f"sim:{state}", "status"], env=env,
