@@ -76,7 +76,8 @@ def writers_round(tmp: Path, rng: random.Random, writers: int, wait: bool) -> di
     parts = []
     for n in range(writers):
         part = tmp / f"part{n}.gcode"
-        part.write_bytes(f"G1 X{n + 1} ; {n}\n".encode() * rng.randint(100_000, 300_000))
+        # a job as it goes to the card (CR ends, no comments): put --job stores it as it is
+        part.write_bytes(f"G1 X{n + 1}\r".encode() * rng.randint(100_000, 300_000))
         parts.append(part)
     options = ["--wait-lock", "120"] if wait else []
     runs = [subprocess.Popen([sys.executable, "-m", "robox.cli", *options, "sdcard", "put",
