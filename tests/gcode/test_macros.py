@@ -11,6 +11,7 @@ from robox.cli import cli
 from robox.errors import UsageError
 from robox.gcode import code_part
 from robox.gcode.macros import directive, find
+from robox.gcode.translate import ROBOXISED
 
 # AutoMaker's start macro for a dual-material head, as its macros directory holds it:
 # only includes and codes, CRLF line ends, a byte order mark first
@@ -80,8 +81,9 @@ def test_an_automaker_start_macro_expands_through_roboxise(macros, tmp_path):
                  "--json")
     assert result.exit_code == 0, result.output
     assert json.loads(result.output)["macros"] == 4
-    assert out.read_bytes() == (b"M83\nG28 Y\nG28 X\nG28 Z\nT0\nG1 D2 F400\nT1\nG1 E2 F400\n"
-                                b"G0 Z5\nG28 Z\nG0 X190\nG28 Z\n")
+    assert out.read_bytes() == ROBOXISED + (
+        b"\nM83\nG28 Y\nG28 X\nG28 Z\nT0\nG1 D2 F400\nT1\nG1 E2 F400\n"
+        b"G0 Z5\nG28 Z\nG0 X190\nG28 Z\n")
 
 
 def test_a_file_made_only_of_includes_is_a_job(macros, tmp_path):
@@ -90,7 +92,8 @@ def test_a_file_made_only_of_includes_is_a_job(macros, tmp_path):
                     b"Macro:Level_Gantry_(2-points)\r\nMacro:Purge Material\r\n")
     out = tmp_path / "only.robox"
     assert run("roboxise", job, "-o", out, "--macros", macros).exit_code == 0
-    assert out.read_bytes() == b"G28 Y\nG28 X\nG28 Z\nG0 Z5\nG28 Z\nG0 X190\nG28 Z\nG4 P100\n"
+    assert out.read_bytes() == ROBOXISED + (b"\nG28 Y\nG28 X\nG28 Z\nG0 Z5\nG28 Z\nG0 X190\n"
+                                            b"G28 Z\nG4 P100\n")
 
 
 def test_send_job_expands_macros_and_never_sends_a_macro_line(macros, tmp_path):

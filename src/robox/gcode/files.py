@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import os
 import tempfile
 from collections.abc import Iterable, Iterator
@@ -15,7 +16,7 @@ from robox.errors import ImageError, UsageError
 from robox.fileio import open_input, read_chunks, refuse_overwriting, replacing
 from robox.formats.protocol import JOB_LINE_LIMIT
 from robox.gcode.text import BOM, code_part, looks_like_gcode, split_lines
-from robox.gcode.translate import Detected, Options, Summary, detect, translate
+from robox.gcode.translate import ROBOXISED, Detected, Options, Summary, detect, translate
 
 HEAD_BYTES = 1 << 16
 TAIL_BYTES = 1 << 16
@@ -77,6 +78,8 @@ def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
     with _lines(source) as (lines, detected):
         refuse_overwriting(target, source)
         translated, summary = translate(lines, options, detected)
+        if end == FILE_LINE_END:  # a file a person keeps: marked a Robox job
+            translated = itertools.chain([ROBOXISED], translated)
         _write_job(translated, target, end)
     return summary
 
