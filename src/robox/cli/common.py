@@ -12,9 +12,7 @@ from robox.errors import RoboxError, UsageError
 EXIT_OK = 0
 EXIT_PROBLEM = 1
 EXIT_USAGE = 2
-
-
-EXIT_INTERRUPTED = 130
+EXIT_INTERRUPTED = 130  # as a shell reports a command Ctrl-C ended
 
 
 class Interrupted(RoboxError):
@@ -107,7 +105,6 @@ def guard_output(output: str, inputs: tuple[str, ...] = (), writing: str = "",
     kind = identify(output)
     if kind is not None and kind != writing:
         confirm(yes, f"{output} is {kind}; write {writing or 'the output'} over it")
-
 
 
 PROGRESS_EVERY_S = 60.0  # away from a terminal: a progress line a minute

@@ -102,7 +102,7 @@ def put_cmd(image: str, file: str, file_id: str | None, job: bool, raw: bool, he
     """Store FILE on IMAGE as a printer receives it (start, 512-byte chunks, end): byte
     for byte, or with --job as the print job send-job would send (and under the same id)."""
     if not job:
-        stored = _put_as_it_is(image, file, file_id, False)
+        stored = _put_as_it_is(image, file, file_id)
     else:
         from robox.gcode import Options, job_file
         from robox.gcode.files import inspect
@@ -135,7 +135,8 @@ def put_cmd(image: str, file: str, file_id: str | None, job: bool, raw: bool, he
         click.echo(f"{image}: dropped {dropped!r} to make room", err=True)
 
 
-def _put_as_it_is(image: str, file: str, file_id: str | None, job: bool) -> dict:
+def _put_as_it_is(image: str, file: str, file_id: str | None) -> dict:
+    """FILE stored byte for byte as a file that is not a job."""
     with open_input(file, "a file to store") as source:
         size = os.fstat(source.fileno()).st_size
         largest = images.largest_file(image)  # refused by size before it is read
@@ -148,7 +149,7 @@ def _put_as_it_is(image: str, file: str, file_id: str | None, job: bool) -> dict
                 digest.update(block)
             source.seek(0)
             file_id = default_id(Path(file).stem, digest.hexdigest())
-        return images.put_stream(image, source, file_id, job)
+        return images.put_stream(image, source, file_id, False)
 
 
 @sdcard.command("get")
