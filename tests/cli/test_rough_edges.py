@@ -302,14 +302,14 @@ def test_ctrl_c_during_an_upload_says_what_it_left_and_resume_goes_on(tmp_path):
 
     state = tmp_path / "printer"
     job = tmp_path / "big.gcode"
-    job.write_bytes(b"G28 X Y\n" + b"G4 P1\n" * 40_000)
+    job.write_bytes(b"G28 X Y\n" + b"G4 P1\n" * 80_000)  # 480 KB: 7.5 s at 1x
     env = {**os.environ, "ROBOX_DEVICE": ""}
     with served(state, speed=1) as pty:
         cli_ = [sys.executable, "-m", "robox.cli", "--device", f"serial:{pty}", "send-job",
                 str(job), "--raw", "--id", "big"]
         sending = subprocess.Popen(cli_, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                    env=env)
-        time.sleep(1.5)
+        time.sleep(2.5)  # started (even on a loaded machine), and well short of the end
         sending.send_signal(signal.SIGINT)
         _, err = sending.communicate(timeout=60)
         assert sending.returncode == 130, err.decode()
