@@ -71,6 +71,17 @@ def emit_json(data: object, err: bool = False) -> None:
     click.echo(json.dumps(data, indent=2), err=err)
 
 
+def report(output: str, data: object, as_json: bool, text: str) -> None:
+    """A command's report on what it wrote to `output`: `data` as JSON or `text`, on
+    stderr when the output itself went to standard output (`-o -`)."""
+    from robox.fileio import is_stdout
+
+    if as_json:
+        emit_json(data, err=is_stdout(output))
+    else:
+        click.echo(text, err=is_stdout(output))
+
+
 def at_terminal() -> bool:
     return sys.stdin.isatty()
 

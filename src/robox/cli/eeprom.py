@@ -6,8 +6,15 @@ import sys
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, emit_json, guard_output, json_option, yes_option
-from robox.fileio import is_stdout, write_atomically
+from robox.cli.common import (
+    EXIT_PROBLEM,
+    emit_json,
+    guard_output,
+    json_option,
+    report,
+    yes_option,
+)
+from robox.fileio import write_atomically
 from robox.offline import eeprom as dumps
 
 set_option = click.option("--set", "assignments", multiple=True, metavar="FIELD=VALUE",
@@ -34,11 +41,8 @@ def new_cmd(kind: str, output: str, assignments: tuple[str, ...], yes: bool,
     dump = dumps.new_dump(kind, list(assignments))  # (the fields checked first)
     guard_output(output, (), "an EEPROM dump", yes)
     write_atomically(output, dump)
-    if as_json:
-        emit_json({"dump": output, "kind": kind, "set": list(assignments)},
-                  err=is_stdout(output))
-    else:
-        click.echo(f"{output}: new {kind} EEPROM, both banks valid", err=is_stdout(output))
+    report(output, {"dump": output, "kind": kind, "set": list(assignments)}, as_json,
+           f"{output}: new {kind} EEPROM, both banks valid")
 
 
 @eeprom.command("show")

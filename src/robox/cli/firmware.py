@@ -6,8 +6,14 @@ import sys
 
 import click
 
-from robox.cli.common import EXIT_PROBLEM, emit_json, guard_output, json_option, yes_option
-from robox.fileio import is_stdout
+from robox.cli.common import (
+    EXIT_PROBLEM,
+    emit_json,
+    guard_output,
+    json_option,
+    report,
+    yes_option,
+)
 from robox.formats.firmware import DEFAULT_OFFSET
 from robox.offline import firmware as images
 
@@ -70,11 +76,8 @@ def to_sd_cmd(bin_file: str, output: str, yes: bool, as_json: bool) -> None:
     """Write BIN as an SD firmware file (two upper-case hex digits per byte)."""
     guard_output(output, (bin_file,), "an SD firmware file", yes)
     result = images.to_sd(bin_file, output)
-    if as_json:
-        emit_json(result, err=is_stdout(output))
-        return
-    click.echo(f"{output}: {result['characters']} characters from {result['bytes']} bytes",
-               err=is_stdout(output))
+    report(output, result, as_json,
+           f"{output}: {result['characters']} characters from {result['bytes']} bytes")
 
 
 @firmware.command("from-sd")
@@ -87,8 +90,5 @@ def from_sd_cmd(file: str, output: str, yes: bool, as_json: bool) -> None:
     """Write the binary held in an SD firmware file."""
     guard_output(output, (file,), "a firmware image", yes)
     result = images.from_sd(file, output)
-    if as_json:
-        emit_json(result, err=is_stdout(output))
-        return
-    click.echo(f"{output}: {result['bytes']} bytes from {result['characters']} characters",
-               err=is_stdout(output))
+    report(output, result, as_json,
+           f"{output}: {result['bytes']} bytes from {result['characters']} characters")
