@@ -88,6 +88,29 @@ def test_a_shut_head_fills_to_its_limit_then_the_drive_slips_and_opening_lets_it
     assert out[-1]["deposited"] == pytest.approx(taken * MM3_PER_STEP - STROKE)
 
 
+@pytest.mark.parametrize("seat", [0.65, -0.70])
+def test_a_needle_on_its_seat_is_shut_though_the_seat_is_a_float32(seat):
+    # The seats are the head EEPROM's float32 B offsets: -0.70 is -0.699999988, and the
+    # needle parked on it (-1,750 microsteps, -0.7 exactly) is 1.2e-8 of a unit short of
+    # it. That is shut: pressurising against it fills the head and the drive slips.
+    import struct
+
+    seat32 = struct.unpack("<f", struct.pack("<f", seat))[0]
+    assert seat32 != seat
+    m = Machine()
+    m.heaters["nozzle0"].temperature = m.heaters["nozzle1"].temperature = 210.0
+    m.insert_filament(E, tip_mm=NOZZLE_MM)
+    m.b = round(seat * B_UNIT)
+    seats = (seat32, -0.70) if seat > 0 else (0.65, seat32)
+    dep = Deposition(head_valves("RBX01-SM"), (1.75, 1.75), seats)
+    dep.attach(m)
+    assert dep.opening == [0.0, 0.0]
+    m.step(E, 1000)
+    assert dep.slipped_steps == 1000 - math.floor(PRESSURE_LIMIT_MM3 / MM3_PER_STEP)
+    m.step(B, 1 if seat > 0 else -1)  # a microstep off the seat: open
+    assert max(dep.opening) == pytest.approx(1 / B_UNIT, abs=1e-7)
+
+
 def test_a_close_on_the_move_lays_its_stroke_along_the_path():
     m, dep = machine()
     m.step(B, B_UNIT)

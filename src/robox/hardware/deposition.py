@@ -49,7 +49,7 @@ import math
 from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from robox.formats.heads import E_FEED, HeadValves
 
@@ -57,6 +57,7 @@ if TYPE_CHECKING:
     from robox.hardware.machine import Machine
 
 B_STEPS: float = 2500.0
+SEATED: Final = 0.5 / B_STEPS  # a needle nearer its seat than this (B units) is shut
 XY_STEPS: float = 133.7
 Z_STEPS: float = 6400.0
 E_STEPS: float = 747.0
@@ -212,7 +213,9 @@ class Deposition:
         units = b / B_STEPS
         for n in range(len(self.opening)):
             o = units - self.seats[0] if n == 0 else self.seats[1] - units
-            o = 0.0 if o < 0.0 else 1.0 if o > 1.0 else o
+            # short of half a microstep off its seat a needle is on it (a seat is the
+            # EEPROM's float32, the needle's place whole microsteps)
+            o = 0.0 if o < SEATED else 1.0 if o > 1.0 else o
             before = self.opening[n]
             if o == before:
                 continue
