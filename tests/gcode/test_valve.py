@@ -155,6 +155,10 @@ def test_totals_equal_the_slicers_plus_the_purge_through_the_sequences():
     assert e_total(out) == pytest.approx(slicer + s.sequence_mm3 - s.depressurise_mm3)
     assert "G36 E500 F400" in out  # pressurised before the purge
     assert out.count("G0 B0") == 0  # no standing close anywhere
+    # each feed pressurised against the needle of a nozzle just selected, wherever the
+    # valve stood before (not with the T carried past it to the purge's first open)
+    for at in (i for i, line in enumerate(out) if line.startswith("G36")):
+        assert out[at - 1] in ("T0", "T1")
 
 
 def test_a_long_path_streams_through_a_bounded_buffer():

@@ -186,6 +186,11 @@ class ValveStage:
         elif code[:1] == b"T" and code[1:].isdigit():
             self._tool(int(code[1:]), out)
         else:
+            if code == b"G36" and self.pending_tool is not None:
+                # filament pushed until the drive slips: against the needle the selected
+                # nozzle shuts, wherever the valve stood before (not the T after it)
+                self.buf.append(self.pending_tool)
+                self.pending_tool = None
             self._add(Step(OTHER, line))
         if len(self.buf) > MAX_BUFFER:
             self._trim(out)
