@@ -128,11 +128,58 @@ class Command:
             if not self._drive_line():
                 return
             self._handle()
+            self._arm(link)
             return
         if self.deaf or not link.received:
             return
         self.buffer += link.device_take(RECEIVE_BUFFER - len(self.buffer))
         self._handle()
+        self._arm(link)
+
+    def _arm(self, link) -> None:
+        """The read armed again once what came is handled (not while a line runs here:
+        it holds the next packet back), for the room the buffer has left."""
+        if self.line is None:
+            link.arm(RECEIVE_BUFFER - len(self.buffer))
+
+    def take_inert(self) -> None:
+        """Take what the link delivered when it cannot complete anything (inert_bytes
+        said so): into the buffer, and the read armed again, as maintain() would."""
+        link = self.fw.hw.usb
+        self.buffer += link.device_take(RECEIVE_BUFFER - len(self.buffer))
+        link.arm(RECEIVE_BUFFER - len(self.buffer))
+
+    def inert_bytes(self) -> int:
+        """How many of the bytes on their way from the host (delivered first, then
+        queued) this object would only add to its buffer: those before the byte that
+        completes the Robox command at its head, and short of filling the buffer. 0 when
+        the next byte may act: a text line (any byte may end it), a line running here,
+        an unknown code, a header not yet whole."""
+        if self.deaf or self.line is not None or self.pending_after_reply is not None:
+            return 0
+        have = len(self.buffer)
+        buf = self.buffer
+        if have == 0:
+            head = self.fw.hw.usb.peek(13)
+            if not head or head[0] < 0x80:
+                return 0
+        elif not self.robox_mode:
+            return 0
+        else:
+            head = bytes(buf[:13])
+            if len(head) < 13:
+                head += self.fw.hw.usb.peek(13 - len(head))
+        code = head[0]
+        if code in FIXED:
+            length = 1 + FIXED[code]
+        elif code in VARIABLE:
+            header, at, digits = VARIABLE[code]
+            if len(head) < 1 + header:
+                return 0
+            length = 1 + header + (get_hex(head[1 + at : 1 + at + digits]) & 0xFFFF)
+        else:
+            return 0
+        return max(0, min(length - 1, RECEIVE_BUFFER - 1) - have)
 
     def busy_line(self) -> bool:
         """True while a line runs here (the job engine waits, as on the printer)."""

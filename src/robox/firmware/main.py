@@ -3,11 +3,12 @@
 One pass = `do_everything_else()` (motion, EEPROMs, file system, commands, user
 interface, heaters, hours counter, in that order) then `maintain_job()`. Each
 pass advances the simulated clock by PASS_S, one float addition at a time as the
-printer's own tick count would. `plan()` decides how far: when nothing can happen
-before a known event (a dwell's end, a heater sample, the bookkeeping tick) the
-clock jumps to it; while a line only waits for the motion queue, the step
-interrupts run ahead to the moment it would go on and the passes in between are
-counted, not run (docs/firmware-model.md, "The loop").
+printer's own tick count would, so it never leaves the millisecond grid the
+recording rig kept. `plan()` decides how many passes to take at once: when nothing
+can happen before a known event (a dwell's end, a heater sample, the bookkeeping
+tick) the passes short of it are counted, not run; while a line only waits for the
+motion queue, the step interrupts run ahead to the moment it would go on and the
+passes in between are counted (docs/firmware-model.md, "The loop").
 """
 
 from __future__ import annotations
@@ -150,15 +151,27 @@ class Firmware:
         # passes a transfer crosses in are light only while that line waits on motion
         # alone (they end with the frame that lands it, and the pass that takes it, a
         # pause say, is whole; the hours counter is brought up to date before it).
-        return self.hw.usb.arriving and (not self.job.running or self._only_motion_awaited())
+        return self._usb_coming() and (not self.job.running or self._only_motion_awaited())
+
+    def _usb_coming(self) -> bool:
+        """Host bytes on their way: delivered and not taken, or queued for a read that
+        can take them."""
+        usb = self.hw.usb
+        return usb.delivering or usb.received > 0
+
+    def _frames_to_act(self) -> int:
+        """How many frames until one delivers a packet the command object acts on (the
+        ones before it bring bytes it only buffers: the rest of a Robox command)."""
+        return self.hw.usb.frames_within(self.command.inert_bytes()) + 1
 
     def _busy_apart_from_light(self) -> bool:
         usb = self.hw.usb
         command = self.command
         line_ready = command.line is not None and (command.waiting is None
                                                    or command.waiting.next_pass())
-        return bool((usb.received and not command.deaf) or line_ready
-                    or (usb.arriving and self.job.running and not self._only_motion_awaited())
+        return bool((usb.received > command.inert_bytes() and not command.deaf) or line_ready
+                    or (self._usb_coming() and self.job.running
+                        and not self._only_motion_awaited())
                     or self.heaters.conversion_ready
                     or command.pending_after_reply or self.job.runnable()
                     or self.reset_requested or self.hours.due())
@@ -187,7 +200,7 @@ class Firmware:
         waiting for room in the motion queue (or for motion to end), the step interrupts
         are run ahead to the moment that happens and the clock moves on to the first
         pass after it, as if every pass in between had looked and found nothing. When
-        the only work is light (an EEPROM stepping, a transfer crossing the bus: see
+        the only work is light (an EEPROM stepping, a command's packets crossing the bus: see
         _run_light_passes), the passes up to a pass short of the next moment any object
         waits for are light, and the last one is whole; while motion runs, that last one
         may take the EEPROMs' steps alone instead (run_pass() decides: _step_pass)."""
@@ -236,8 +249,8 @@ class Firmware:
             # ending a pass short of the horizon: the passes that reach it are whole, so
             # each object meets its moment at the pass it would one pass at a time
             n = max(1, int((horizon - now) / PASS_S + 1e-9) - 1)
-            if self.hw.usb.arriving:
-                n = min(n, self.hw.usb.frames_to_land() + 1)
+            if self._usb_coming():
+                n = min(n, self._frames_to_act() + 1)
             return PASS_S, n
         motion = self.motion
         if not motion.empty() or self.hw.machine.hand_busy():
@@ -246,11 +259,11 @@ class Firmware:
             most = int((horizon - now) / PASS_S + 1e-9)
             may_step = False
             if stepping:  # light passes up to the first EEPROM step that is not inert
-                if self.hw.usb.arriving:  # and to the frame that lands a transfer
-                    most = min(most, self.hw.usb.frames_to_land() + 1)
+                if self._usb_coming():  # and to the frame that brings what acts
+                    most = min(most, self._frames_to_act() + 1)
                 inert = self.eeproms.inert_passes(PASS_S, most - 1)
                 # that step's pass short of every other moment (a horizon, the pass that
-                # takes a landed transfer): it may be a step pass (see _step_pass)
+                # takes a packet that acts): it may be a step pass (see _step_pass)
                 may_step = inert + 1 < most
                 most = min(most, inert + 1)
                 if most < 2 and not may_step:
@@ -274,7 +287,19 @@ class Firmware:
                 k += 1
                 if motion.tick_of(t) >= tick or k >= most:
                     return PASS_S, k
-        return max(PASS_S, horizon - now), 1
+        if not skip:
+            return PASS_S, 1
+        # idle up to the horizon: the passes short of it are skipped, the clock added up
+        # as the tick adds it, a millisecond at a time (it stays on the grid the
+        # firmware's millisecond counter keeps); the pass that reaches it runs as it would
+        # one pass at a time, whichever side of it the sums' rounding puts it
+        t = now
+        idle: i64 = 0
+        stop = horizon - 0.5 * PASS_S
+        while idle < 1 or t + PASS_S < stop:
+            t += PASS_S
+            idle += 1
+        return PASS_S, idle
 
     def run_pass(self, step: float | None = None, passes: int = 1) -> None:
         """One pass of the loop after the clock moves on by `step` (default: as far as
@@ -283,7 +308,7 @@ class Firmware:
         dt = self.next_step() if step is None else step
         # (whatever light work plan() saw: the interrupts it ran ahead may since have
         # emptied the queue, which ends the wait that let a transfer's frames be light)
-        if passes > 1 and (self.hw.usb.arriving or not self.eeproms.all_quiet()):
+        if passes > 1 and (self._usb_coming() or not self.eeproms.all_quiet()):
             self._run_light_passes(dt, passes - 1)
             passes = 1
         if may_step and passes == 1 and self.eeproms.light_steps(self.clock.now + dt):
@@ -315,21 +340,26 @@ class Firmware:
 
     def _run_light_passes(self, dt: float, most: int) -> None:
         """Up to `most` light passes: passes in which the only work is an EEPROM's step
-        (Eeproms.run_inert_passes) or a packet from the host crossing the bus (the
-        command object sees a transfer only once it has landed whole). The other objects
-        would idle through them, so they are skipped as in any other skipped pass; they
-        end at the latest with the pass whose frame lands a transfer, and the caller runs
+        (Eeproms.run_inert_passes) or a packet from the host crossing the bus that the
+        command object only adds to its buffer (the rest of a Robox command: taken here,
+        the read armed again, as its maintain() would). The other objects would idle
+        through them, so they are skipped as in any other skipped pass; they end at the
+        latest with the pass whose frame brings a packet that acts, and the caller runs
         the next pass whole."""
         usb, eeproms = self.hw.usb, self.eeproms
-        if usb.arriving:
-            most = min(most, usb.frames_to_land())
+        coming = self._usb_coming()
+        if coming:
+            most = min(most, self._frames_to_act())
         if eeproms.all_quiet():
             self.clock.advance(dt, most)
             done = most
         else:
             done = eeproms.run_inert_passes(dt, most)
         if done:
-            for _ in range(done if usb.arriving else 0):
+            command = self.command
+            for _ in range(done if coming else 0):
+                if usb.received:  # the packet the pass before brought: only buffered
+                    command.take_inert()
                 usb.frame()
             self.hw.machine.advance(dt * done)
             self.motion.catch_up()

@@ -61,6 +61,10 @@ TICKS_PER_S: Final = BOARD_MCK // 32
 SPEED_UNITS: Final = BOARD_MCK / (65536.0 * 32.0)  # steps/s per speed unit
 MARGIN_UNITS: Final = int(32.0 * SPEED_UNITS * 0.1)  # the queue's 0.1 s margin
 IDLE_PERIOD: Final = 0x10000 // MIN_SPEED
+#: When the step timer starts counting after power-up: its first compare falls this long
+#: after power-up plus one period (the simulated hardware's timing, as the recording
+#: rig had it; the phase at which a block queued while idle starts)
+TIMER_START_S: Final = 0.002
 FLT_MAX: Final = 3.4028234663852886e38
 FILAMENT_AUTOLOAD_THRESHOLD: Final = 8
 FILAMENT_HOLDOFF_S: Final = 4.0
@@ -143,7 +147,7 @@ class Motion:
         self.acc = vec[i64]([0] * 6)
         self.active = False
         self.last_index = [0, 0]  # the interrupt's own copy; starts unknown (0)
-        self.next_tick = self.tick_of(fw.clock.now) + IDLE_PERIOD
+        self.next_tick = self.tick_of(fw.clock.now + TIMER_START_S) + IDLE_PERIOD
         self.last_tick = self.next_tick - IDLE_PERIOD
         self.autoload_counter = [self.machine.index_wheel(E), self.machine.index_wheel(D)]
         self.slip_error = [False, False]

@@ -10,7 +10,10 @@ point:
   nozzle height is the gantry line between them at the carriage's X, and
   the Z switch is actuated at height 0 and below, the Z-top switch at 95 mm
   and above.
-- B: the valve; its switch is actuated at 0 and above (the nozzle-0 side).
+- B: the valve; its switch is actuated at 0 and above (the nozzle-0 side). At
+  power-up the valve rests 0.7 B units (1,750 microsteps) on that side, where the
+  recording rig's machine starts it (`VALVE_REST_STEPS`): how far the first tool
+  change or valve move has to travel, and so when the motion after it ends.
 - E, D: filament paths. Along a path (in the extruder's microsteps) the
   drive and its index wheel sit at 0, the filament sensor just after them and
   the nozzle at the end. A filament occupies [tail, tip]; the drive moves it
@@ -65,6 +68,7 @@ MELT_C: Final = 150.0
 HAND_SPEED_MM_S: Final = 20.0
 DOOR_UNLOCK_Y_MM: Final = 158.0
 NEVER: Final = 1 << 60
+VALVE_REST_STEPS: Final = round(0.7 * STEPS_PER_MM[B])  # where the valve is at power-up
 
 
 def _steps(axis: int, mm: float) -> int:
@@ -148,7 +152,7 @@ class Machine:
     y: int = 0
     za: int = 0
     zb: int = 0
-    b: int = 0
+    b: int = VALVE_REST_STEPS
     gantry_rotation: bool = False  # ZA runs the other way (the firmware's gantry levelling)
     # per extruder, indexed by axis (E, D; the other places are unused): lists, which the
     # step interrupt's calls read natively compiled, where dicts are looked up

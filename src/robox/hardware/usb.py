@@ -1,17 +1,24 @@
 """The USB CDC link between a host and the printer, as the firmware and the host see it.
 
-Bytes the host writes wait in the device's receive endpoint until the firmware
-takes them. Replies queue for the host in the order they were sent: the
-recordings of the real firmware show every reply of a burst arriving (thirty
-Pronterface `ok`s from one chunk of text, say) and USB_TX never set, so a
-reply is never clobbered here. A reply counts as "in flight" until the host
-has read it (a reset waits for that). A disconnect drops everything in both
-directions.
+Bytes the host writes join a queue on the device's side of the bus. The firmware
+reads with a transfer it arms (`arm`, with the room it has for bytes); at the end of
+each loop pass (`frame`), if a read is armed and bytes are queued, up to one 64-byte
+packet of them (no more than the room) is delivered as that transfer and the read is
+disarmed until the firmware has taken them and arms it again. So a write made before
+a pass is delivered at the end of it and taken in the next; an n-byte command needs
+ceil(n/64) passes to arrive; a line that runs inside the command handler holds the
+next packet back; and a firmware with no room left reads nothing more. (The recording
+rig's USB, `../shared/conformance/README.md`; a PC's bulk transfers cross in the
+same packets.)
+
+Replies queue for the host in the order they were sent: the recordings of the real
+firmware show every reply of a burst arriving (thirty Pronterface `ok`s from one
+chunk of text, say) and USB_TX never set, so a reply is never clobbered here. A
+reply counts as "in flight" until the host has read it (a reset waits for that). A
+disconnect drops everything in both directions.
 """
 
 from __future__ import annotations
-
-from collections import deque
 
 from robox.errors import RoboxError
 
@@ -25,8 +32,10 @@ class LinkDown(RoboxError):
 class UsbLink:
     def __init__(self) -> None:
         self.connected = True
-        self._rx = bytearray()  # host -> device, arrived, not yet taken by the firmware
-        self._transfers: deque[list] = deque()  # [data, packets still to cross]
+        self._rx = bytearray()  # host -> device, delivered, not yet taken by the firmware
+        self._host = bytearray()  # host -> device, written, not yet delivered
+        self.armed = True  # the firmware has a read armed
+        self.room = 1 << 30  # how many bytes that read may take
         self._tx = bytearray()  # replies the host has not read yet
         self.replies = 0
         self.bytes_in = 0
@@ -36,8 +45,7 @@ class UsbLink:
     def host_write(self, data: bytes) -> None:
         if not self.connected:
             raise LinkDown("the printer is not connected")
-        if data:
-            self._transfers.append([bytes(data), -(-len(data) // PACKET_SIZE)])
+        self._host += data
         self.bytes_in += len(data)
 
     def host_read(self, limit: int = PACKET_SIZE) -> bytes:
@@ -54,33 +62,61 @@ class UsbLink:
     def disconnect(self) -> None:
         self.connected = False
         self._rx.clear()
-        self._transfers.clear()
+        self._host.clear()
         self._tx.clear()
 
     def connect(self) -> None:
         self.connected = True
 
     # --------------------------------------------------------- device side
-    def frame(self) -> None:
-        """One bus frame: the next packet of the host's oldest transfer crosses; a
-        transfer whose last packet is in reaches the receive endpoint whole."""
-        if not self._transfers:
-            return
-        head = self._transfers[0]
-        head[1] -= 1
-        if head[1] <= 0:
-            self._rx += head[0]
-            self._transfers.popleft()
+    def arm(self, room: int) -> None:
+        """The firmware arms a read for up to `room` bytes."""
+        self.armed = True
+        self.room = room
 
-    def frames_to_land(self) -> int:
-        """How many more frames until the oldest transfer from the host has landed whole
-        (0: none is crossing)."""
-        return max(1, self._transfers[0][1]) if self._transfers else 0
+    def frame(self) -> None:
+        """The end of a loop pass: a packet of the host's bytes to an armed read."""
+        if not self.armed or not self._host:
+            return
+        n = min(PACKET_SIZE, self.room, len(self._host))
+        if n <= 0:
+            return
+        self._rx += self._host[:n]
+        del self._host[:n]
+        self.armed = False
+
+    def frames_within(self, inert: int) -> int:
+        """How many of the coming frames deliver only bytes among the first `inert` of
+        those on their way (delivered ones first), the read armed again each time with
+        the room left: a look ahead that delivers nothing."""
+        got = len(self._rx)
+        left = len(self._host)
+        room = self.room - got
+        k = 0
+        while left > 0 and room > 0:
+            n = min(PACKET_SIZE, room, left)
+            if got + n > inert:
+                break
+            got += n
+            left -= n
+            room -= n
+            k += 1
+        return k
+
+    def peek(self, n: int) -> bytes:
+        """The first `n` bytes on their way (delivered ones first), left where they are."""
+        out = bytes(self._rx[:n])
+        return out + bytes(self._host[:n - len(out)]) if len(out) < n else out
+
+    @property
+    def delivering(self) -> bool:
+        """Bytes from the host are queued and the firmware's read can take some."""
+        return bool(self._host) and self.armed and self.room > 0
 
     @property
     def arriving(self) -> bool:
-        """A transfer from the host is still crossing the bus."""
-        return bool(self._transfers)
+        """Bytes from the host are queued, not yet delivered."""
+        return bool(self._host)
 
     @property
     def received(self) -> int:
