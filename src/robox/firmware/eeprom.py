@@ -36,6 +36,7 @@ from robox.formats.eeprom import (
     mask7,
 )
 from robox.formats.eeprom import field as field_named
+from robox.formats.heads import max_temperature
 from robox.formats.protocol import ErrorBit
 from robox.hardware.clock import SimClock
 from robox.hardware.eeprom import EepromChip
@@ -362,22 +363,7 @@ class Eeproms:
 
     def head_max_temperature(self) -> float:
         name = self._head_type()
-        if name is not None:
-            if name in (b"RBX01-S2", b"RBX01-DM"):
-                return 280.0
-            if name == b"RBXDV-S1":
-                return 300.0
-            if name == b"RBXDV-S2":
-                return 500.0
-            if name[:2] == b"RX":
-                t = name[4]
-                if 0x31 <= t <= 0x39:
-                    return float(200 + 5 * (t - 0x31))
-                if 0x41 <= t <= 0x5A:
-                    return float(245 + 5 * (t - 0x41))
-                if 0x61 <= t <= 0x7A:
-                    return float(375 + 5 * (t - 0x61))
-        return 260.0
+        return max_temperature(name if name is not None else b"")
 
     def get_float(self, index: EepromIndex, name: str) -> float:
         f = field_named(KIND_OF[index], name)

@@ -53,6 +53,29 @@ PLAIN = HeadValves("plain", (0.4,), (), (E_FEED,))
 _BY_KIND = {"single": SINGLE, "dual": DUAL, "plain": PLAIN}
 
 
+def max_temperature(type_code: bytes | str) -> float:
+    """The highest nozzle temperature the firmware lets a head of this type reach (°C):
+    eeprom.c's reading of the type code's first eight characters, to which it clamps
+    every nozzle target. An unknown type (RBX01-SM among them) gets 260."""
+    name = (type_code.encode("ascii", "replace") if isinstance(type_code, str)
+            else bytes(type_code))[:8]
+    if name in (b"RBX01-S2", b"RBX01-DM"):
+        return 280.0
+    if name == b"RBXDV-S1":
+        return 300.0
+    if name == b"RBXDV-S2":
+        return 500.0
+    if name[:2] == b"RX" and len(name) > 4:
+        t = name[4]
+        if 0x31 <= t <= 0x39:
+            return float(200 + 5 * (t - 0x31))
+        if 0x41 <= t <= 0x5A:
+            return float(245 + 5 * (t - 0x41))
+        if 0x61 <= t <= 0x7A:
+            return float(375 + 5 * (t - 0x61))
+    return 260.0
+
+
 def head_kind(type_code: str) -> str:
     """'dual' (two materials, E and D), 'single' (one material, two nozzles behind a
     valve) or 'plain' (no valve): from the head EEPROM's type code as eeprom.c reads
