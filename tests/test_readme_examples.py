@@ -100,6 +100,14 @@ def _built(home: Path) -> None:
     (home / "robox.bin").write_bytes(built_image())
 
 
+def _reel_definition(home: Path) -> None:
+    """The README's definition file, as it shows it."""
+    block = README.split("`material` to start from and replaces what it gives, or gives "
+                         "everything:\n\n", 1)[1].split("\n\n", 1)[0]
+    (home / "acme-abs.toml").write_text("\n".join(line[4:] for line in block.splitlines())
+                                        + "\n")
+
+
 def _fresh_card(home: Path) -> None:
     (home / "card.img").unlink(missing_ok=True)
 
@@ -121,6 +129,14 @@ EXAMPLES: list[tuple[str, object, list[str]]] = [
      ["robox-cli read-eeprom reel0", "robox-cli write-eeprom reel0 remaining_filament=120000",
       "robox-cli format-eeprom head --yes"]),  # (away from a terminal: --yes, as it says)
     ("robox-cli update-firmware robox.bin", _released, ["robox-cli update-firmware robox.bin"]),
+    ("robox-cli reel materials", None, ["robox-cli reel materials"]),
+    ("robox-cli reel program PETG --remaining 240", None,
+     ["robox-cli reel program PETG --remaining 240"]),
+    ("robox-cli reel program --from acme-abs.toml", _reel_definition,
+     ["robox-cli reel program --from acme-abs.toml",
+      "robox-cli reel show --json | jq -e '.name == \"Acme ABS black\" and .bed_c == 95'"]),
+    ("robox-cli reel show --json > reel.json", None,
+     ["robox-cli reel show --json > reel.json", "robox-cli reel program --from reel.json"]),
     ('eval "$(_ROBOX_CLI_COMPLETE=bash_source robox-cli)"', None,
      ['eval "$(_ROBOX_CLI_COMPLETE=bash_source robox-cli)"']),
     ("robox-cli roboxise part.gcode -o part.robox [--json]", None,

@@ -37,6 +37,9 @@ LAZY_COMMANDS = {
                  "being served."),
     "read-eeprom": ("robox.cli.printer", "read_eeprom_cmd",
                     "Read a head or reel EEPROM and show its fields."),
+    "reel": ("robox.cli.reel", "reel",
+             "Filament reels: program a reel's EEPROM for any filament, and read one "
+             "back."),
     "reset": ("robox.cli.printer", "reset_cmd",
               "Reset the printer (as switching it off and on, keeping the power)."),
     "resume": ("robox.cli.printer", "resume_cmd", "Resume a paused job."),
