@@ -124,10 +124,9 @@ EXAMPLES: list[tuple[str, object, list[str]]] = [
       "robox-cli run-job $(robox-cli files --json | jq -r '.[-1].id')", "robox-cli abort"]),
     ('robox-cli gcode M105 "G1 X10 F3000"', None, ['robox-cli gcode M105 "G1 X10 F3000"']),
     ("robox-cli errors [--clear]", None, ["robox-cli errors", "robox-cli errors --clear"]),
-    ("robox-cli read-eeprom reel0 | write-eeprom reel0 remaining_filament=120000 | "
-     "format-eeprom head", None,
-     ["robox-cli read-eeprom reel0", "robox-cli write-eeprom reel0 remaining_filament=120000",
-      "robox-cli format-eeprom head --yes"]),  # (away from a terminal: --yes, as it says)
+    ("robox-cli purge [--nozzle N] [--yes]", None,
+     ["robox-cli purge --yes", "robox-cli purge --nozzle 1 --yes"]),
+    ("robox-cli level-gantry --yes", None, ["robox-cli level-gantry --yes"]),
     ("robox-cli update-firmware robox.bin", _released, ["robox-cli update-firmware robox.bin"]),
     ("robox-cli reel materials", None, ["robox-cli reel materials"]),
     ("robox-cli reel program PETG --remaining 240", None,
@@ -206,6 +205,12 @@ EXAMPLES: list[tuple[str, object, list[str]]] = [
     ("robox-cli sim unload [--state DIR] [--feed E|D|both]", None,
      ["robox-cli sim unload --state {other} --feed D", "robox-cli sim unload --state {other}"]),
     ("robox-cli printers", None, ["robox-cli printers"]),
+    # last: a formatted head has no thermistor data, and the printer then cuts the head's
+    # power for over-temperature at its next sample, as a real one would
+    ("robox-cli read-eeprom reel0 | write-eeprom reel0 remaining_filament=120000 | "
+     "format-eeprom head", None,
+     ["robox-cli read-eeprom reel0", "robox-cli write-eeprom reel0 remaining_filament=120000",
+      "robox-cli format-eeprom head --yes"]),  # (away from a terminal: --yes, as it says)
 ]
 
 

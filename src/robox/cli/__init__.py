@@ -31,7 +31,11 @@ LAZY_COMMANDS = {
     "gcode": ("robox.cli.printer", "gcode_cmd",
               "Send G-code lines; prints the response of reporting codes (M105, M114, "
               "...)."),
+    "level-gantry": ("robox.cli.maintenance", "level_gantry_cmd",
+                     "Level the gantry from the Z switch at each leadscrew."),
     "pause": ("robox.cli.printer", "pause_cmd", "Pause the job (the head parks)."),
+    "purge": ("robox.cli.maintenance", "purge_cmd",
+              "Purge the old material out of the nozzle(s) after a material change."),
     "printers": ("robox.cli.printer", "printers_cmd",
                  "List the Robox printers attached over USB and the virtual printers "
                  "being served."),

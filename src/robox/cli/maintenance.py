@@ -1,0 +1,95 @@
+"""robox-cli purge and level-gantry: AutoMaker's looking-after jobs as guided sequences
+(src/robox/maintenance.py)."""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import asdict
+
+import click
+
+from robox.cli.common import at_terminal, emit_json, json_option
+
+yes_answer = click.option("-y", "--yes", "answer_yes", is_flag=True, default=None,
+                          help="Answer the question yes (needed away from a terminal).")
+dry_run_option = click.option("--dry-run", is_flag=True,
+                              help="Show the steps; send nothing that moves or heats.")
+
+
+def _ask(key: str, text: str) -> bool:
+    return click.confirm(text, default=False, err=True)
+
+
+def _run(ctx, make, answers: dict, dry_run: bool, as_json: bool, read_printer=None):
+    """Open the printer, build the sequence (`make(printer, ...)`) and run it; the
+    report as lines or JSON."""
+    from robox.cli.printer import device
+
+    say = (lambda _text: None) if as_json else (lambda text: click.echo(text, err=False))
+    ask = _ask if at_terminal() else None
+    with device(ctx) if (read_printer or not dry_run) else contextlib.nullcontext() as printer:
+        facts = read_printer(printer) if read_printer else {}
+        sequence = make(printer, answers, ask, say, dry_run, **facts)
+        report = sequence.run()
+    if as_json:
+        emit_json(asdict(report))
+        return
+    for name, value in report.measured.items():
+        click.echo(f"measured {name}: {value}")
+    for name, value in report.written.items():
+        click.echo(f"wrote {name}: {value}")
+    click.echo(f"{report.sequence}: {'dry run, nothing sent' if dry_run else 'done'}")
+
+
+def _head_and_reels(printer) -> dict:
+    status = printer.status()
+    if status.job:
+        from robox.errors import RoboxError
+
+        raise RoboxError(f"a job is running ({status.job}): abort it or let it finish first")
+    head = printer.read_eeprom_fields("head") if status.eeproms["head"] == "valid" else {}
+    reels = {which: printer.read_eeprom_fields(which)
+             for which in ("reel0", "reel1") if status.eeproms[which] == "valid"}
+    return {"head": head, "reels": reels}
+
+
+@click.command("purge")
+@click.option("--nozzle", type=click.IntRange(0, 1),
+              help="Purge this nozzle only (default: every nozzle the head has).")
+@click.option("--temperature", type=click.FloatRange(150, 500), metavar="C",
+              help="Purge at this temperature (default: AutoMaker's, halfway from the "
+                   "material the head last melted to the reel's).")
+@yes_answer
+@dry_run_option
+@json_option
+@click.pass_context
+def purge_cmd(ctx, nozzle, temperature, answer_yes, dry_run, as_json) -> None:
+    """Purge the old material out of the nozzle(s) after a material change.
+
+    Home, level, heat, pressurise and lay purge lines at the front of the bed, then
+    record the new material in the head."""
+    from robox.maintenance import Purge
+
+    def make(printer, answers, ask, say, dry_run, head, reels):
+        return Purge(printer, answers, ask, say, dry_run, nozzle=nozzle,
+                     temperature=temperature, head=head, reels=reels)
+
+    _run(ctx, make, {"yes": answer_yes}, dry_run, as_json, read_printer=_head_and_reels)
+
+
+@click.command("level-gantry")
+@yes_answer
+@dry_run_option
+@json_option
+@click.pass_context
+def level_gantry_cmd(ctx, answer_yes, dry_run, as_json) -> None:
+    """Level the gantry from the Z switch at each leadscrew.
+
+    Z is homed at each leadscrew, the gantry levelled (G38) and Z homed in the middle;
+    prints the Z difference the printer measured."""
+    from robox.maintenance import LevelGantry
+
+    def make(printer, answers, ask, say, dry_run):
+        return LevelGantry(printer, answers, ask, say, dry_run)
+
+    _run(ctx, make, {"yes": answer_yes}, dry_run, as_json)

@@ -1,0 +1,314 @@
+"""Looking after the printer: jobs AutoMaker's wizards did that are not prints, as
+guided sequences any printer robox-cli drives can run.
+
+A sequence is a list of steps: G-code sent line by line through the execute buffer
+(0x95) and waited out by watching the status report, questions for the person at the
+printer, readings, and EEPROM writes. Every question has a key an option answers, so a
+script or a test can drive a sequence; a question nobody answers away from a terminal
+is refused rather than waited on. `--dry-run` lists the steps and sends nothing.
+
+Ctrl-C or an error at any step runs the sequence's restore before it ends: the printer
+is told to abort (which empties its queues and switches every heater off, 0xff) and the
+heaters are switched off by G-code too; an EEPROM is only ever written whole, in one
+command, as a sequence's last step, so it holds the old data or the new.
+
+Where AutoMaker's behaviour is followed and where not, per sequence:
+
+- `purge`: the purge temperature is AutoMaker's, halfway from the material the head
+  last melted (its EEPROM) to the reel's, at least 180 °C and at most the head's
+  maximum; the head is homed and the gantry levelled, the nozzles heated and waited
+  for here (within 5 °C, as AutoMaker waited), each nozzle's feed pressurised
+  against its shut needle (G36) and purge lines laid along the front of the bed,
+  and the reel's temperature written to the head as the material it last melted
+  (what makes the printer stop asking for a purge). Unlike AutoMaker the bed is not
+  heated to 90 °C first: the lines are scrap, and a cold bed saves minutes.
+- `level-gantry`: AutoMaker's two-point levelling (Z homed at each leadscrew, G38,
+  Z homed in the middle) and the Z difference the printer measured (M113).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from robox.errors import RoboxError, UsageError
+from robox.formats.heads import head_kind, head_valves, max_temperature
+from robox.formats.protocol import error_names
+
+#: how close a nozzle must come to its target before the sequence goes on (AutoMaker's)
+TEMPERATURE_MARGIN_C = 5.0
+#: AutoMaker's floor for a purge temperature
+PURGE_MIN_C = 180.0
+PURGE_LINES_PER_NOZZLE = 3
+PURGE_MM3_PER_LINE = 20.0
+POLL_S = 0.5
+HEAT_TIMEOUT_S = 900.0
+MOVE_TIMEOUT_S = 600.0
+
+LEVEL_GANTRY = ("G90", "G28 X Y", "G0 X20 Y75", "G28 Z", "G0 X200 Y75", "G28 Z", "G38",
+                "G0 X113 Y75", "G28 Z")
+
+
+class Declined(RoboxError):
+    """The person at the printer said no: nothing more is done."""
+
+
+Ask = Callable[[str, str], bool]
+
+
+@dataclass
+class Report:
+    """What a sequence did: its steps, what it measured and what it wrote."""
+
+    sequence: str
+    dry_run: bool
+    steps: list[str] = field(default_factory=list)
+    measured: dict = field(default_factory=dict)
+    written: dict = field(default_factory=dict)
+
+
+class Sequence:
+    """One run of a guided sequence on `printer` (None with `dry_run`)."""
+
+    name = ""
+
+    def __init__(self, printer, answers: dict[str, bool], ask: Ask | None,
+                 say: Callable[[str], None], dry_run: bool = False):
+        self.printer = printer
+        self.answers = answers
+        self.ask = ask
+        self.say = say
+        self.dry_run = dry_run
+        self.report = Report(self.name, dry_run)
+        self.heating = False
+
+    # ------------------------------------------------------------ running
+    def run(self) -> Report:
+        try:
+            self.steps()
+        except BaseException:
+            if not self.dry_run:
+                self.restore()
+            raise
+        return self.report
+
+    def steps(self) -> None:  # pragma: no cover - each sequence has its own
+        raise NotImplementedError
+
+    def restore(self) -> None:
+        """After Ctrl-C or an error: nothing left moving or hot. Best effort: a printer
+        that has gone cannot be told."""
+        try:
+            self.printer.abort()
+            if self.heating:
+                for line in ("M104 S0 T0", "M140 S0"):
+                    self.printer.gcode(line + "\r")
+        except (RoboxError, OSError):
+            pass
+
+    # ------------------------------------------------------------ steps
+    def step(self, text: str) -> None:
+        self.report.steps.append(text)
+        self.say(("would: " if self.dry_run else "") + text)
+
+    def question(self, key: str, text: str) -> None:
+        """A yes-or-no question for the person at the printer; `key` is the option that
+        answers it. No: Declined."""
+        if self.dry_run:
+            self.step(f"ask: {text} (--{key})")
+            return
+        answer = self.answers.get(key)
+        if answer is None:
+            if self.ask is None:
+                raise UsageError(f"{text} Not at a terminal: answer with --{key}")
+            answer = self.ask(key, text)
+        if not answer:
+            raise Declined(f"{self.name}: stopped at the question: {text}")
+
+    def send(self, text: str, lines: tuple[str, ...] | list[str]) -> None:
+        """G-code lines through the execute buffer, then wait until the printer has
+        run them (its status idle)."""
+        self.step(text)
+        if self.dry_run:
+            for line in lines:
+                self.say(f"    {line}")
+            return
+        known = self.printer.errors()
+        for line in lines:
+            self.printer.gcode(line + "\r")
+            self.wait_idle(known, MOVE_TIMEOUT_S)
+
+    def wait_idle(self, known_errors: int, timeout_s: float) -> None:
+        """Until two looks POLL_S apart find the printer idle (a line between two of
+        its moves, homing say, can show idle for a moment)."""
+        start = time.monotonic()
+        idle = 0
+        while True:
+            status = self.printer.status()
+            self.check_errors(known_errors)
+            idle = idle + 1 if not status.busy else 0
+            if idle >= 2:
+                return
+            if time.monotonic() - start > timeout_s:
+                raise RoboxError(f"{self.name}: the printer was still busy after "
+                                 f"{timeout_s:g} s")
+            self.printer.idle(POLL_S)
+
+    def check_errors(self, known: int) -> None:
+        fresh = self.printer.errors() & ~known
+        if fresh:
+            raise RoboxError(f"{self.name}: the printer reported "
+                             f"{', '.join(error_names(fresh))}")
+
+    def heat(self, targets: dict[int, float]) -> None:
+        """Nozzle targets set, then waited for (within TEMPERATURE_MARGIN_C)."""
+        words = " ".join(("S" if n == 0 else "T") + f"{t:g}" for n, t in sorted(targets.items()))
+        self.step(f"heat nozzle{'s' if len(targets) > 1 else ''} "
+                  + ", ".join(f"{n} to {t:g} °C" for n, t in sorted(targets.items())))
+        if self.dry_run:
+            self.say(f"    M104 {words}")
+            return
+        self.heating = True
+        known = self.printer.errors()
+        self.printer.gcode(f"M104 {words}\r")
+        start = time.monotonic()
+        while True:
+            status = self.printer.status()
+            temps = status.temperatures
+            self.check_errors(known)
+            if not status.head_power:
+                raise RoboxError(f"{self.name}: the head's power is off (errors: "
+                                 f"{', '.join(error_names(self.printer.errors())) or 'none'})")
+            if all(temps[f"nozzle{n}"]["measured"] >= t - TEMPERATURE_MARGIN_C
+                   for n, t in targets.items()):
+                return
+            if time.monotonic() - start > HEAT_TIMEOUT_S:
+                raise RoboxError(f"{self.name}: the nozzle did not reach its temperature")
+            self.printer.idle(POLL_S)
+
+
+def purge_temperature(last_c: float, reel_c: float, head_max_c: float) -> float:
+    """AutoMaker's purge temperature: halfway from the material the head last melted to
+    the reel's, at least 180 °C, at most the head's maximum (whole degrees)."""
+    if not math.isfinite(last_c) or last_c <= 0:
+        last_c = reel_c
+    return float(int(min(head_max_c, max(PURGE_MIN_C, last_c + (reel_c - last_c) / 2))))
+
+
+class Purge(Sequence):
+    """Purge the nozzle(s) of the old material after a material change."""
+
+    name = "purge"
+
+    def __init__(self, *args, nozzle: int | None = None, temperature: float | None = None,
+                 head: dict | None = None, reels: dict | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.nozzle = nozzle
+        self.temperature = temperature
+        self.head = head or {}
+        self.reels = reels or {}
+
+    def plan(self) -> tuple[dict[int, dict], dict[int, float]]:
+        """The nozzles purged, each with its feed; and the heaters, each with its reel's
+        temperature, the material the head last melted and the purge temperature. A
+        single-material head has one heater for both nozzles and both are purged (as
+        AutoMaker did); a dual-material head a heater per nozzle."""
+        head_type = str(self.head.get("type_code", "") or "")
+        if not head_type:
+            raise RoboxError("purge: the head's EEPROM gives no head type (is the head in "
+                             "place? a formatted head needs its data written back)")
+        kind = head_kind(head_type)
+        valves = head_valves(head_type)
+        nozzles = [0] if kind == "plain" else [0, 1]
+        if self.nozzle is not None:
+            if self.nozzle not in nozzles:
+                raise UsageError(f"purge: a {head_type} head has no nozzle {self.nozzle}")
+            nozzles = [self.nozzle]
+        limit = max_temperature(head_type)
+        purged: dict[int, dict] = {}
+        heaters: dict[int, dict] = {}
+        for n in nozzles:
+            feed = valves.feeds[n] if n < len(valves.feeds) else "E"
+            heater = n if kind == "dual" else 0
+            purged[n] = {"feed": feed, "heater": heater}
+            if heater in heaters:
+                continue
+            which = "reel0" if feed == "E" else "reel1"
+            reel = self.reels.get(which)
+            if reel is None:
+                raise RoboxError(f"purge: nozzle {n} is fed from {which}, which has no "
+                                 "valid EEPROM (is the reel in place?)")
+            reel_c = float(reel["nozzle_temperature"])
+            last_c = float(self.head.get(f"nozzle{heater}_last_filament_temperature", 0.0)
+                           or 0.0)
+            target = self.temperature if self.temperature is not None else \
+                purge_temperature(last_c, reel_c, limit)
+            if target > limit:
+                raise UsageError(f"purge: {target:g} °C is above the {limit:g} °C the head "
+                                 "reaches")
+            heaters[heater] = {"reel_c": reel_c, "last_c": last_c, "purge_c": target}
+        return purged, heaters
+
+    def steps(self) -> None:
+        purged, heaters = self.plan()
+        self.report.measured = {f"heater{h}": p for h, p in heaters.items()}
+        self.report.measured["nozzles"] = sorted(purged)
+        at = ", ".join(f"{p['purge_c']:g} °C (last material {p['last_c']:g} °C, this "
+                       f"reel {p['reel_c']:g} °C)" for p in heaters.values())
+        self.question("yes", f"Purge nozzle{'s' if len(purged) > 1 else ''} "
+                             f"{' and '.join(str(n) for n in purged)} at {at}? The head "
+                             "homes and lays purge lines along the front of the bed.")
+        self.send("home and level the gantry", LEVEL_GANTRY)
+        self.heat({h: p["purge_c"] for h, p in heaters.items()})
+        for i in range(PURGE_LINES_PER_NOZZLE):
+            for k, n in enumerate(purged):
+                y = 15 + 10 * (i * len(purged) + k)
+                feed = purged[n]["feed"]
+                self.send(f"purge line {i + 1} of nozzle {n}",
+                          [f"G0 X20 Y{y} Z0.3", f"T{n}", f"G36 {feed}500 F400", "G0 B1",
+                           f"G1 X180 {feed}{PURGE_MM3_PER_LINE:g} F400", "G0 B0", "G0 Z1"])
+        self.send("heaters off, the head up and away",
+                  ["M104 S0 T0", "G0 Z10", "G0 X113 Y140"])
+        self.heating = False
+        self.record_materials(heaters)
+
+    def record_materials(self, heaters: dict[int, dict]) -> None:
+        """The head's EEPROM told the material each purged heater's nozzle now holds
+        (its reel's temperature), in one write of its whole data."""
+        assignments = {f"nozzle{h}_last_filament_temperature": p["reel_c"]
+                       for h, p in heaters.items()}
+        self.step("record in the head: " + ", ".join(
+            f"nozzle {h} last melted {p['reel_c']:g} °C" for h, p in heaters.items()))
+        if self.dry_run:
+            return
+        from robox.formats import eeprom as fmt
+
+        before = self.printer.read_eeprom("head")
+        data = bytearray(before)
+        for name, value in assignments.items():
+            fmt.set_field(data, "head", name, value)
+        self.printer.write_eeprom("head", 0, bytes(data))
+        if self.printer.read_eeprom("head") != fmt.mask7(bytes(data)):
+            raise RoboxError("purge: the head EEPROM reads back other than was written")
+        self.report.written = {"head": assignments}
+
+
+class LevelGantry(Sequence):
+    """Level the gantry from the Z switch at each leadscrew."""
+
+    name = "level-gantry"
+
+    def steps(self) -> None:
+        self.question("yes", "Level the gantry? The head homes and probes the bed at "
+                             "both sides.")
+        self.send("home, probe Z at each leadscrew, level the gantry (G38)", LEVEL_GANTRY)
+        if self.dry_run:
+            return
+        reply = self.printer.gcode("M113\r")
+        value = None
+        for part in reply.replace("\r", "\n").split("\n"):
+            if part.startswith("Zdelta:"):
+                value = float(part.split(":", 1)[1])
+        self.report.measured = {"z_delta_mm": value}

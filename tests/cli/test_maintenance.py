@@ -1,0 +1,193 @@
+"""robox-cli purge and level-gantry against the virtual printer: what they measure and
+write (the head EEPROM checked in its chip dump, both banks and their CRCs computed
+here), the question and its option, --dry-run, and Ctrl-C or a refusal at every point
+leaving the printer cold and its EEPROMs as they were."""
+
+import json
+import struct
+import time
+from pathlib import Path
+
+import click
+import pytest
+import usb.core
+from click.testing import CliRunner
+
+from robox import maintenance
+from robox.cli import cli
+from robox.host import devices
+from robox.sim.printer import VirtualPrinter
+from robox.sim.usb_backend import VirtualRoboxBackend
+from tests.cli.test_sdcard_cli import one_line_error
+from tests.sim.serving import served
+from tests.unit.test_eeprom_format import reference_crc
+
+AREA_MM2 = 3.141592653589793 * 1.75 * 1.75 / 4
+
+
+def run(*args: str, **kwargs):
+    return CliRunner().invoke(cli, list(args), catch_exceptions=False, **kwargs)
+
+
+def head_data(state: Path) -> bytes:
+    raw = (state / "head.eeprom").read_bytes()
+    for start in (0, 0x100):
+        data, crc = raw[start : start + 192], raw[start + 192 : start + 196]
+        assert struct.pack("<I", reference_crc(data)) == crc
+    assert raw[:192] == raw[0x100:0x1C0]
+    return raw[:192]
+
+
+def left_mm(state: Path) -> float:
+    return json.loads((state / "filament.json").read_text())["E"]["length_mm"]
+
+
+@pytest.fixture
+def loaded(tmp_path):
+    """A virtual printer with filament at the nozzle and a PETG reel (240 °C) where the
+    head last melted 210 °C."""
+    state = tmp_path / "p"
+    assert run("sim", "load", "--state", str(state)).exit_code == 0
+    assert run("--device", f"sim-once:{state}", "reel", "program", "PETG").exit_code == 0
+    return state
+
+
+def status(state: Path) -> dict:
+    result = run("--device", f"sim-once:{state}", "status", "--json")
+    assert result.exit_code == 0, result.output
+    return json.loads(result.output)
+
+
+def test_purge_heats_halfway_lays_the_lines_and_records_the_new_material(loaded):
+    before = head_data(loaded)
+    assert before[0xB0:0xB8] == b"210.0000"
+    length = left_mm(loaded)
+    result = run("--device", f"sim-once:{loaded}", "purge", "--yes", "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.output)
+    # AutoMaker's purge temperature: halfway from 210 to 240
+    assert out["measured"]["heater0"] == {"reel_c": 240, "last_c": 210, "purge_c": 225}
+    assert out["measured"]["nozzles"] == [0, 1]  # a single-material head: both nozzles
+    assert out["written"] == {"head": {"nozzle0_last_filament_temperature": 240}}
+    after = head_data(loaded)
+    assert after[0xB0:0xB8] == b"240.0000"
+    assert after[:0xB0] == before[:0xB0]
+    # and the head's hours went on counting while it was hot (the firmware's own write)
+    assert float(after[0xB8:0xC0]) > float(before[0xB8:0xC0])
+    # six lines of 20 mm3, and what pressurising the shut head took (at most 1 mm3 each)
+    used = length - left_mm(loaded)
+    assert 6 * 20 / AREA_MM2 <= used <= (6 * 20 + 6) / AREA_MM2 + 1
+    s = status(loaded)
+    assert s["temperatures"]["nozzle0"]["mode"] == "0"  # heater off at the end
+    # and the next purge finds nothing to change: the head holds the reel's material
+    again = json.loads(run("--device", f"sim-once:{loaded}", "purge", "--yes",
+                           "--json").output)
+    assert again["measured"]["heater0"] == {"reel_c": 240, "last_c": 240, "purge_c": 240}
+
+
+def test_dry_run_lists_the_steps_and_changes_nothing(loaded):
+    before = (head_data(loaded), left_mm(loaded), (loaded / "sdcard.img").read_bytes())
+    result = run("--device", f"sim-once:{loaded}", "purge", "--dry-run", "--nozzle", "1")
+    assert result.exit_code == 0, result.output
+    assert "would: ask: Purge nozzle 1 at 225 °C" in result.output
+    assert "    G36 E500 F400" in result.output and "nothing sent" in result.output
+    assert (head_data(loaded), left_mm(loaded), (loaded / "sdcard.img").read_bytes()) == before
+
+
+def test_away_from_a_terminal_the_question_needs_its_option(loaded):
+    before = head_data(loaded)
+    one_line_error(run("--device", f"sim-once:{loaded}", "purge"), 2, "answer with --yes")
+    assert head_data(loaded) == before
+    assert status(loaded)["position"] == {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
+
+
+@pytest.mark.parametrize("answer,code", [("n\n", 1), ("\x03", 130)])
+def test_at_a_terminal_no_or_ctrl_c_at_the_question_moves_nothing(loaded, monkeypatch,
+                                                                    answer, code):
+    from robox.cli import maintenance as cli_maintenance
+
+    monkeypatch.setattr(cli_maintenance, "at_terminal", lambda: True)
+    if answer == "\x03":
+        def interrupted(*_args, **_kwargs):
+            raise KeyboardInterrupt
+        monkeypatch.setattr(click, "confirm", interrupted)
+    before = head_data(loaded)
+    result = run("--device", f"sim-once:{loaded}", "purge", input=answer)
+    assert result.exit_code == code, result.output
+    assert "Traceback" not in result.output
+    assert head_data(loaded) == before
+    assert status(loaded)["position"] == {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
+
+
+@pytest.mark.parametrize("at_step", range(1, 10))
+def test_ctrl_c_at_any_step_leaves_the_heater_off_and_the_head_as_it_was(loaded, monkeypatch,
+                                                                         at_step):
+    """Steps: home and level, heat, six purge lines, heaters off; then the head write."""
+    real_step = maintenance.Sequence.step
+    seen = []
+
+    def step(self, text):
+        seen.append(text)
+        if len(seen) == at_step + 1:  # Ctrl-C as the next step begins
+            raise KeyboardInterrupt
+        real_step(self, text)
+
+    monkeypatch.setattr(maintenance.Sequence, "step", step)
+    before = head_data(loaded)
+    result = run("--device", f"sim-once:{loaded}", "purge", "--yes")
+    assert result.exit_code == 130, result.output
+    assert "Traceback" not in result.output
+    # the head as it was, but for the hours the firmware counts while it is hot
+    assert head_data(loaded)[:0xB8] == before[:0xB8]
+    s = status(loaded)
+    assert s["temperatures"]["nozzle0"]["mode"] == "0" and not s["busy"]
+
+
+def test_a_missing_reel_is_refused_before_anything_moves(tmp_path):
+    state = tmp_path / "p"
+    assert run("--device", f"sim-once:{state}", "status").exit_code == 0
+    (state / "reel0.eeprom").write_bytes(b"\xff" * 512)  # a reel with a blank chip
+    one_line_error(run("--device", f"sim-once:{state}", "purge", "--yes"), 1,
+                   "nozzle 0 is fed from reel0, which has no valid EEPROM")
+    assert status(state)["position"]["X"] == 0.0
+
+
+def test_a_formatted_head_is_refused_before_anything_moves(loaded):
+    assert run("--device", f"sim-once:{loaded}", "format-eeprom", "head", "--yes").exit_code == 0
+    one_line_error(run("--device", f"sim-once:{loaded}", "purge", "--yes"), 1,
+                   "the head's EEPROM gives no head type")
+    assert status(loaded)["position"]["X"] == 0.0
+
+
+def test_a_temperature_above_the_heads_is_refused(loaded):
+    one_line_error(run("--device", f"sim-once:{loaded}", "purge", "--yes",
+                       "--temperature", "270"), 2, "270 °C is above the 260 °C")
+
+
+def test_level_gantry_over_the_served_printers_pty(tmp_path):
+    state = tmp_path / "p"
+    with served(state) as pty:
+        result = run("--device", f"serial:{pty}", "level-gantry", "--yes", "--json")
+        assert result.exit_code == 0, result.output
+        out = json.loads(result.output)
+        position = json.loads(run("--device", f"serial:{pty}", "status", "--json").output)
+    assert out["measured"]["z_delta_mm"] == pytest.approx(0.0, abs=0.001)
+    assert out["steps"][0].startswith("home, probe Z at each leadscrew")
+    assert position["position"]["X"] == pytest.approx(113.0, abs=0.01)  # parked mid-way
+
+
+def test_purge_through_the_pyusb_backend(monkeypatch, tmp_path):
+    virtual = VirtualPrinter(tmp_path / "p")  # a head calibrated as one leaves the factory
+    virtual.settle()
+    device = usb.core.find(idVendor=0x16D0, idProduct=0x081B,
+                           backend=VirtualRoboxBackend(virtual))
+    monkeypatch.setattr(devices, "_usb_devices", lambda: [device])
+    # the printer behind the backend runs while the host reads; while the host sleeps
+    # between looks, it runs for the time slept, as an attached printer would
+    monkeypatch.setattr(time, "sleep", lambda seconds: virtual.run_until(None, seconds))
+    result = run("--device", "usb", "purge", "--yes", "--nozzle", "0", "--temperature",
+                 "215", "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.output)
+    assert out["measured"]["heater0"]["purge_c"] == 215
+    assert virtual.firmware.heaters.nozzle[0].mode == 0
