@@ -103,6 +103,7 @@ class Command:
         self.line_reply: Callable[[bytes], None] = _no_reply  # how its response is sent
         self.waiting: Wait | None = None
         self.deaf = False
+        self.fw.hw.usb.arm(RECEIVE_BUFFER)  # the read armed afresh, for the whole buffer
 
     # ------------------------------------------------------------ errors
     @property
