@@ -127,6 +127,10 @@ EXAMPLES: list[tuple[str, object, list[str]]] = [
     ("robox-cli purge [--nozzle N] [--yes]", None,
      ["robox-cli purge --yes", "robox-cli purge --nozzle 1 --yes"]),
     ("robox-cli level-gantry --yes", None, ["robox-cli level-gantry --yes"]),
+    ("robox-cli unload [--feed D] --yes", None, ["robox-cli unload --yes"]),
+    ("robox-cli head-change --yes --swapped", None,
+     ["robox-cli head-change --yes --swapped --json | jq -e "
+      "'.measured.new_head.type_code == \"RBX01-SM\"'"]),
     ("robox-cli update-firmware robox.bin", _released, ["robox-cli update-firmware robox.bin"]),
     ("robox-cli reel materials", None, ["robox-cli reel materials"]),
     ("robox-cli reel program PETG --remaining 240", None,

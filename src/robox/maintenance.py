@@ -24,6 +24,12 @@ Where AutoMaker's behaviour is followed and where not, per sequence:
   heated to 90 °C first: the lines are scrap, and a cold bed saves minutes.
 - `level-gantry`: AutoMaker's two-point levelling (Z homed at each leadscrew, G38,
   Z homed in the middle) and the Z difference the printer measured (M113).
+- `unload`: the firmware's own unload (M122: it heats for it, moves the carriage to the
+  right and pulls the filament back).
+- `head-change`: AutoMaker's Remove head (home, T0 with the valve shut, park at the
+  front, unload every feed the head has, unlock the door), then a question while the
+  head is changed and the new head's EEPROM read. Like AutoMaker it leaves the head's
+  power on.
 """
 
 from __future__ import annotations
@@ -73,6 +79,8 @@ class Sequence:
     """One run of a guided sequence on `printer` (None with `dry_run`)."""
 
     name = ""
+    #: the options that answer its questions (away from a terminal, all must be given)
+    questions: tuple[str, ...] = ("yes",)
 
     def __init__(self, printer, answers: dict[str, bool], ask: Ask | None,
                  say: Callable[[str], None], dry_run: bool = False):
@@ -86,6 +94,11 @@ class Sequence:
 
     # ------------------------------------------------------------ running
     def run(self) -> Report:
+        if self.ask is None and not self.dry_run:
+            missing = [k for k in self.questions if self.answers.get(k) is None]
+            if missing:
+                raise UsageError(f"{self.name} asks questions; not at a terminal: answer "
+                                 f"them with {' '.join('--' + k for k in missing)}")
         try:
             self.steps()
         except BaseException:
@@ -312,3 +325,69 @@ class LevelGantry(Sequence):
             if part.startswith("Zdelta:"):
                 value = float(part.split(":", 1)[1])
         self.report.measured = {"z_delta_mm": value}
+
+
+class Unload(Sequence):
+    """Unload a feed's filament: the printer heats the nozzle, moves the carriage right
+    and pulls the filament back out of the Bowden tube (M122)."""
+
+    name = "unload"
+
+    def __init__(self, *args, feed: str = "E", **kwargs):
+        super().__init__(*args, **kwargs)
+        self.feed = feed
+
+    def steps(self) -> None:
+        self.question("yes", f"Unload the filament from feed {self.feed}? The nozzle heats "
+                             "and the drive pulls the filament back: hold the reel.")
+        self.heating = True  # (the printer heats for the unload itself)
+        self.send(f"unload feed {self.feed} (the printer heats, moves right and pulls back)",
+                  [f"M122 {self.feed}"])
+        self.heating = False
+        self.report.measured = {"unloaded": self.feed}
+
+
+class HeadChange(Sequence):
+    """Get the printer ready for a head to be taken off, wait while it is changed, and
+    read the new head (AutoMaker's Remove head: home, shut the valve, park at the
+    front, unload the filament, unlock the door)."""
+
+    name = "head-change"
+    questions = ("yes", "swapped")
+
+    def __init__(self, *args, head: dict | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.head = head or {}
+
+    def steps(self) -> None:
+        head_type = str(self.head.get("type_code", "") or "")
+        feeds = ["E", "D"] if head_type and head_kind(head_type) == "dual" else ["E"]
+        self.question("yes", "Change the head? The filament is unloaded, the head parks at "
+                             "the front and the door unlocks.")
+        self.send("home", ["G90", "G28 X Y", "G28 Z"])
+        self.send("shut the valve and park the head at the front",
+                  ["T0", "G0 B0", "G0 X210 Y120 Z20"])
+        self.heating = True
+        self.send("unload the filament (" + " and ".join(f"feed {f}" for f in feeds) + ")",
+                  [f"M122 {f}" for f in feeds])
+        self.heating = False
+        self.send("unlock the door", ["G37"])
+        self.question("swapped", "Take the head off and fit the new one. Is the new head "
+                                 "in place?")
+        self.step("read the new head")
+        if self.dry_run:
+            return
+        status = None
+        for _ in range(20):  # its EEPROM is read within moments of being plugged in
+            status = self.printer.status()
+            if status.eeproms["head"] == "valid":
+                break
+            self.printer.idle(POLL_S)
+        if status is None or status.eeproms["head"] != "valid":
+            raise RoboxError("head-change: the new head's EEPROM cannot be read (is it "
+                             "seated?)")
+        fields = self.printer.read_eeprom_fields("head")
+        self.report.measured = {"old_head": {"type_code": head_type,
+                                             "unique_id": self.head.get("unique_id", "")},
+                                "new_head": {"type_code": fields["type_code"],
+                                             "unique_id": fields["unique_id"]}}

@@ -96,7 +96,7 @@ def test_dry_run_lists_the_steps_and_changes_nothing(loaded):
 
 def test_away_from_a_terminal_the_question_needs_its_option(loaded):
     before = head_data(loaded)
-    one_line_error(run("--device", f"sim-once:{loaded}", "purge"), 2, "answer with --yes")
+    one_line_error(run("--device", f"sim-once:{loaded}", "purge"), 2, "answer them with --yes")
     assert head_data(loaded) == before
     assert status(loaded)["position"] == {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
 
@@ -191,3 +191,54 @@ def test_purge_through_the_pyusb_backend(monkeypatch, tmp_path):
     out = json.loads(result.output)
     assert out["measured"]["heater0"]["purge_c"] == 215
     assert virtual.firmware.heaters.nozzle[0].mode == 0
+
+
+def tip_mm(state: Path) -> float:
+    return json.loads((state / "filament.json").read_text())["E"]["tip_mm"]
+
+
+def test_unload_pulls_the_filament_back_behind_the_drive_and_leaves_the_heater_off(loaded):
+    assert tip_mm(loaded) == 380.0  # at the nozzle
+    result = run("--device", f"sim-once:{loaded}", "unload", "--yes", "--json")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["measured"] == {"unloaded": "E"}
+    assert tip_mm(loaded) < 0  # out of the drive, into the person's hand
+    assert status(loaded)["temperatures"]["nozzle0"]["mode"] == "0"
+
+
+def test_head_change_parks_unloads_unlocks_and_reads_the_new_head(loaded):
+    result = run("--device", f"sim-once:{loaded}", "head-change", "--yes", "--swapped",
+                 "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.output)
+    assert out["measured"]["new_head"] == {"type_code": "RBX01-SM",
+                                           "unique_id": "RBXSIMHEAD0001"}
+    assert out["steps"][-2:] == ["unlock the door", "read the new head"]
+    assert tip_mm(loaded) < 0
+
+
+def test_head_change_away_from_a_terminal_needs_every_answer_before_it_moves(loaded):
+    one_line_error(run("--device", f"sim-once:{loaded}", "head-change", "--yes"), 2,
+                   "answer them with --swapped")
+    assert tip_mm(loaded) == 380.0
+    assert status(loaded)["position"] == {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
+
+
+def test_ctrl_c_at_the_swap_question_leaves_the_printer_cold(loaded, monkeypatch):
+    from robox.cli import maintenance as cli_maintenance
+
+    monkeypatch.setattr(cli_maintenance, "at_terminal", lambda: True)
+    answers = iter([True])
+
+    def confirm(*_args, **_kwargs):
+        try:
+            return next(answers)
+        except StopIteration:
+            raise KeyboardInterrupt from None
+
+    monkeypatch.setattr(click, "confirm", confirm)
+    result = run("--device", f"sim-once:{loaded}", "head-change")
+    assert result.exit_code == 130, result.output
+    assert "unlock the door" in result.output and "read the new head" not in result.output
+    s = status(loaded)
+    assert s["temperatures"]["nozzle0"]["mode"] == "0" and not s["busy"]

@@ -31,6 +31,9 @@ LAZY_COMMANDS = {
     "gcode": ("robox.cli.printer", "gcode_cmd",
               "Send G-code lines; prints the response of reporting codes (M105, M114, "
               "...)."),
+    "head-change": ("robox.cli.maintenance", "head_change_cmd",
+                    "Change the head: unload, park at the front and unlock, then read the "
+                    "new one."),
     "level-gantry": ("robox.cli.maintenance", "level_gantry_cmd",
                      "Level the gantry from the Z switch at each leadscrew."),
     "pause": ("robox.cli.printer", "pause_cmd", "Pause the job (the head parks)."),
@@ -67,6 +70,8 @@ LAZY_COMMANDS = {
                  "extrusion with the valve shut, a reel running out, the printer's "
                  "errors."),
     "status": ("robox.cli.printer", "status_cmd", "Show the printer's status report."),
+    "unload": ("robox.cli.maintenance", "unload_cmd",
+               "Unload a feed's filament: the printer heats, moves right and pulls it back."),
     "update-firmware": ("robox.cli.printer", "update_firmware_cmd",
                         "Verify BIN, upload it, flash it, and check the printer comes "
                         "back."),

@@ -93,3 +93,46 @@ def level_gantry_cmd(ctx, answer_yes, dry_run, as_json) -> None:
         return LevelGantry(printer, answers, ask, say, dry_run)
 
     _run(ctx, make, {"yes": answer_yes}, dry_run, as_json)
+
+
+@click.command("unload")
+@click.option("--feed", type=click.Choice(["E", "D"]), default="E", show_default=True,
+              help="Which feed: E (reel 0), or D (reel 1, a dual-material head).")
+@yes_answer
+@dry_run_option
+@json_option
+@click.pass_context
+def unload_cmd(ctx, feed, answer_yes, dry_run, as_json) -> None:
+    """Unload a feed's filament: the printer heats, moves right and pulls it back."""
+    from robox.maintenance import Unload
+
+    def make(printer, answers, ask, say, dry_run):
+        return Unload(printer, answers, ask, say, dry_run, feed=feed)
+
+    _run(ctx, make, {"yes": answer_yes}, dry_run, as_json)
+
+
+@click.command("head-change")
+@yes_answer
+@click.option("--swapped", "answer_swapped", is_flag=True, default=None,
+              help="Answer that the new head is in place (away from a terminal).")
+@dry_run_option
+@json_option
+@click.pass_context
+def head_change_cmd(ctx, answer_yes, answer_swapped, dry_run, as_json) -> None:
+    """Change the head: unload, park at the front and unlock, then read the new one.
+
+    As AutoMaker's Remove head: home, shut the valve, park at the front, unload the
+    filament and unlock the door; then, once the new head is in place, read its EEPROM."""
+    from robox.maintenance import HeadChange
+
+    def read_head(printer) -> dict:
+        status = printer.status()
+        head = printer.read_eeprom_fields("head") if status.eeproms["head"] == "valid" else {}
+        return {"head": head}
+
+    def make(printer, answers, ask, say, dry_run, head):
+        return HeadChange(printer, answers, ask, say, dry_run, head=head)
+
+    _run(ctx, make, {"yes": answer_yes, "swapped": answer_swapped}, dry_run, as_json,
+         read_printer=read_head)
