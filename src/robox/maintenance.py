@@ -201,6 +201,26 @@ class Sequence:
                 raise RoboxError(f"{self.name}: the nozzle did not reach its temperature")
             self.printer.idle(POLL_S)
 
+    def cool(self, nozzle: int, target: float) -> None:
+        """Set a nozzle's target below where it is and wait until it has come down to it
+        (within TEMPERATURE_MARGIN_C)."""
+        word = "S" if nozzle == 0 else "T"
+        self.step(f"let nozzle {nozzle} cool to {target:g} °C")
+        if self.dry_run:
+            self.say(f"    M104 {word}{target:g}")
+            return
+        known = self.printer.errors()
+        self.printer.gcode(f"M104 {word}{target:g}\r")
+        start = time.monotonic()
+        while True:
+            measured = self.printer.status().temperatures[f"nozzle{nozzle}"]["measured"]
+            self.check_errors(known)
+            if measured <= target + TEMPERATURE_MARGIN_C:
+                return
+            if time.monotonic() - start > HEAT_TIMEOUT_S:
+                raise RoboxError(f"{self.name}: the nozzle did not cool to {target:g} °C")
+            self.printer.idle(POLL_S)
+
 
 def purge_temperature(last_c: float, reel_c: float, head_max_c: float) -> float:
     """AutoMaker's purge temperature: halfway from the material the head last melted to
@@ -391,3 +411,55 @@ class HeadChange(Sequence):
                                              "unique_id": self.head.get("unique_id", "")},
                                 "new_head": {"type_code": fields["type_code"],
                                              "unique_id": fields["unique_id"]}}
+
+
+#: AutoMaker's eject temperatures: soft enough to draw a neck, then cool enough to snap
+NECK_C = 140.0
+SNAP_C = 125.0
+
+
+class EjectStuck(Sequence):
+    """Free filament stuck in the head (AutoMaker's Eject stuck material): heat to the
+    reel's first-layer temperature, push a short purge through each nozzle, then let
+    the nozzle cool while drawing the filament back: a neck at 140 °C, snapped at
+    125 °C, and the drive pulls it out until it slips."""
+
+    name = "eject-stuck"
+
+    def __init__(self, *args, head: dict | None = None, reels: dict | None = None,
+                 **kwargs):
+        super().__init__(*args, **kwargs)
+        self.head = head or {}
+        self.reels = reels or {}
+
+    def steps(self) -> None:
+        head_type = str(self.head.get("type_code", "") or "")
+        if not head_type:
+            raise RoboxError("eject-stuck: the head's EEPROM gives no head type (is the "
+                             "head in place?)")
+        if head_kind(head_type) == "dual":
+            raise UsageError("eject-stuck: a dual-material head is not supported yet")
+        reel = self.reels.get("reel0")
+        if reel is None:
+            raise RoboxError("eject-stuck: reel0 has no valid EEPROM (is the reel in "
+                             "place?): its temperature is needed")
+        hot = min(float(reel["first_layer_nozzle_temperature"]), max_temperature(head_type))
+        nozzles = [0] if head_kind(head_type) == "plain" else [0, 1]
+        self.report.measured = {"heat_c": hot, "neck_c": NECK_C, "snap_c": SNAP_C}
+        self.question("yes", f"Eject the stuck filament? The nozzle heats to {hot:g} °C, "
+                             "pushes a little through, then cools while the drive pulls "
+                             "the filament out: hold the reel.")
+        self.send("home", ["G90", "G28 X Y", "G28 Z"])
+        self.heat({0: hot})
+        for k, n in enumerate(nozzles):
+            x = 20 + 40 * k
+            self.send(f"push through nozzle {n}",
+                      [f"G0 X{x} Y0 Z8", f"T{n}", "G0 Z4", "G36 E1200 F400", "G0 B1",
+                       f"G1 X{x + 12} E70 F50", "G0 B0", "G0 Z8"])
+        self.cool(0, NECK_C)
+        self.send("draw a neck in the filament", ["G1 E-50 F2100"])
+        self.cool(0, SNAP_C)
+        self.send("snap it and pull the filament out",
+                  ["G36 E-1200 F2100", "G1 E-20 F2100"])
+        self.send("heaters off, the head up and away", ["M104 S0 T0", "G0 Z20", "G0 X113 Y140"])
+        self.heating = False

@@ -242,3 +242,36 @@ def test_ctrl_c_at_the_swap_question_leaves_the_printer_cold(loaded, monkeypatch
     assert "unlock the door" in result.output and "read the new head" not in result.output
     s = status(loaded)
     assert s["temperatures"]["nozzle0"]["mode"] == "0" and not s["busy"]
+
+
+def test_eject_stuck_pushes_through_then_cools_and_pulls_the_filament_out(loaded):
+    length = left_mm(loaded)
+    result = run("--device", f"sim-once:{loaded}", "eject-stuck", "--yes", "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.output)
+    # the reel's first-layer temperature (PETG: 245), a neck at 140, snapped at 125
+    assert out["measured"] == {"heat_c": 245.0, "neck_c": 140.0, "snap_c": 125.0}
+    assert out["steps"][4:7] == ["let nozzle 0 cool to 140 °C", "draw a neck in the filament",
+                                 "let nozzle 0 cool to 125 °C"]
+    assert tip_mm(loaded) < 0  # out of the drive
+    # two pushes of 70 mm3 through the nozzles (and what pressurising took)
+    assert 140 / AREA_MM2 <= length - left_mm(loaded) <= 142 / AREA_MM2 + 1
+    assert status(loaded)["temperatures"]["nozzle0"]["mode"] == "0"
+
+
+@pytest.mark.parametrize("at_step", [4, 6, 7])
+def test_ctrl_c_while_eject_stuck_cools_leaves_the_heater_off(loaded, monkeypatch, at_step):
+    real_step = maintenance.Sequence.step
+    seen = []
+
+    def step(self, text):
+        seen.append(text)
+        if len(seen) == at_step + 1:
+            raise KeyboardInterrupt
+        real_step(self, text)
+
+    monkeypatch.setattr(maintenance.Sequence, "step", step)
+    result = run("--device", f"sim-once:{loaded}", "eject-stuck", "--yes")
+    assert result.exit_code == 130, result.output
+    s = status(loaded)
+    assert s["temperatures"]["nozzle0"]["mode"] == "0" and not s["busy"]

@@ -16,6 +16,9 @@ from robox.cli.common import RoboxGroup
 LAZY_COMMANDS = {
     "abort": ("robox.cli.printer", "abort_cmd",
               "Abort the job and switch the heaters off (with no job, the heaters only)."),
+    "eject-stuck": ("robox.cli.maintenance", "eject_stuck_cmd",
+                    "Free filament stuck in the head: heat, push through, cool and pull it "
+                    "out."),
     "eeprom": ("robox.cli.eeprom", "eeprom",
                "Build, inspect and change head and reel EEPROM dumps."),
     "errors": ("robox.cli.printer", "errors_cmd",
