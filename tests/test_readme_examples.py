@@ -37,6 +37,8 @@ NOT_RUN_HERE = {
     "sudo udevadm control --reload && sudo udevadm trigger": "needs root",
     "sudo usermod -aG plugdev $USER": "needs root",
     ".venv/bin/pip install '.[octoprint]'": "tests/octoprint runs OctoPrint",
+    "robox-cli load [--feed D]": "needs a person pushing filament into the inlet: "
+                                 "tests/cli/test_maintenance.py plays that part",
 }
 
 

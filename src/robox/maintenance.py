@@ -26,6 +26,10 @@ Where AutoMaker's behaviour is followed and where not, per sequence:
   Z homed in the middle) and the Z difference the printer measured (M113).
 - `unload`: the firmware's own unload (M122: it heats for it, moves the carriage to the
   right and pulls the filament back).
+- `load`: the printer's own automatic load (the index wheel turning with nothing at the
+  sensor starts it); the sequence asks while the person pushes the filament in, waits
+  while the printer loads it to the nozzle and checks the sensor sees it.
+- `eject-stuck`: AutoMaker's Eject stuck material for a head with one heater.
 - `head-change`: AutoMaker's Remove head (home, T0 with the valve shut, park at the
   front, unload every feed the head has, unlock the door), then a question while the
   head is changed and the new head's EEPROM read. Like AutoMaker it leaves the head's
@@ -463,3 +467,38 @@ class EjectStuck(Sequence):
                   ["G36 E-1200 F2100", "G1 E-20 F2100"])
         self.send("heaters off, the head up and away", ["M104 S0 T0", "G0 Z20", "G0 X113 Y140"])
         self.heating = False
+
+
+#: where the status report's switch flags give each feed's filament sensor
+SENSOR_AT = {"E": 30, "D": 31}
+
+
+class Load(Sequence):
+    """Load a feed: the person pushes the filament into the inlet until the drive takes
+    it, and the printer loads it to the nozzle by itself (its automatic load, as on
+    AutoMaker's printers: the index wheel turning with no filament at the sensor)."""
+
+    name = "load"
+    questions = ("inserted",)
+
+    def __init__(self, *args, feed: str = "E", **kwargs):
+        super().__init__(*args, **kwargs)
+        self.feed = feed
+
+    def at_sensor(self) -> bool:
+        return self.printer.status().raw[SENSOR_AT[self.feed]:SENSOR_AT[self.feed] + 1] == b"1"
+
+    def steps(self) -> None:
+        if not self.dry_run and self.at_sensor():
+            raise RoboxError(f"load: feed {self.feed} already has filament at its sensor "
+                             "(robox-cli unload takes it out)")
+        self.question("inserted", f"Push the filament into feed {self.feed}'s inlet until "
+                                  "the drive takes it; the printer then loads it to the "
+                                  "nozzle. Has the drive taken it?")
+        self.step(f"wait while the printer loads feed {self.feed} to the nozzle")
+        if self.dry_run:
+            return
+        self.wait_idle(self.printer.errors(), MOVE_TIMEOUT_S)
+        if not self.at_sensor():
+            raise RoboxError(f"load: no filament reached feed {self.feed}'s sensor")
+        self.report.measured = {"loaded": self.feed}

@@ -275,3 +275,44 @@ def test_ctrl_c_while_eject_stuck_cools_leaves_the_heater_off(loaded, monkeypatc
     assert result.exit_code == 130, result.output
     s = status(loaded)
     assert s["temperatures"]["nozzle0"]["mode"] == "0" and not s["busy"]
+
+
+def test_load_waits_for_the_printers_own_load_through_the_pyusb_backend(monkeypatch, tmp_path):
+    """The question is answered as the person at the printer would: filament pushed into
+    the inlet by hand until the drive takes it (the index wheel turns with nothing at
+    the sensor, and the printer starts its own load)."""
+    from robox.cli import maintenance as cli_maintenance
+    from robox.hardware.machine import E
+
+    virtual = VirtualPrinter(tmp_path / "p")
+    virtual.settle()
+    virtual.run_until(None, 5.0)  # (no automatic load within 4 s of power-up)
+    device = usb.core.find(idVendor=0x16D0, idProduct=0x081B,
+                           backend=VirtualRoboxBackend(virtual))
+    monkeypatch.setattr(devices, "_usb_devices", lambda: [device])
+    monkeypatch.setattr(time, "sleep", lambda seconds: virtual.run_until(None, seconds))
+    monkeypatch.setattr(cli_maintenance, "at_terminal", lambda: True)
+    machine = virtual.hw.machine
+
+    def person(*_args, **_kwargs):
+        machine.insert_filament(E, tip_mm=-5.0)
+        machine.feed_by_hand(E, 8.0)
+        assert virtual.run_until(lambda: virtual.firmware.position.what != 0, 10)
+        return True
+
+    monkeypatch.setattr(click, "confirm", person)
+    result = run("--device", "usb", "load", "--json")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output)["measured"] == {"loaded": "E"}
+    assert machine.filament[E].tip == machine.nozzle_steps(E)  # at the nozzle
+    # and again: the sensor sees it, so there is nothing to load
+    one_line_error(run("--device", "usb", "load", "--inserted"), 1,
+                   "feed E already has filament at its sensor")
+
+
+def test_load_with_nothing_pushed_in_says_so(tmp_path):
+    state = tmp_path / "p"
+    one_line_error(run("--device", f"sim-once:{state}", "load", "--inserted"), 1,
+                   "no filament reached feed E's sensor")
+    one_line_error(run("--device", f"sim-once:{state}", "load"), 2,
+                   "answer them with --inserted")

@@ -39,6 +39,9 @@ LAZY_COMMANDS = {
                     "new one."),
     "level-gantry": ("robox.cli.maintenance", "level_gantry_cmd",
                      "Level the gantry from the Z switch at each leadscrew."),
+    "load": ("robox.cli.maintenance", "load_cmd",
+             "Load a feed: push the filament in until the drive takes it; the printer does "
+             "the rest."),
     "pause": ("robox.cli.printer", "pause_cmd", "Pause the job (the head parks)."),
     "purge": ("robox.cli.maintenance", "purge_cmd",
               "Purge the old material out of the nozzle(s) after a material change."),

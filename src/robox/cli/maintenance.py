@@ -154,3 +154,21 @@ def eject_stuck_cmd(ctx, answer_yes, dry_run, as_json) -> None:
         return EjectStuck(printer, answers, ask, say, dry_run, head=head, reels=reels)
 
     _run(ctx, make, {"yes": answer_yes}, dry_run, as_json, read_printer=_head_and_reels)
+
+
+@click.command("load")
+@click.option("--feed", type=click.Choice(["E", "D"]), default="E", show_default=True,
+              help="Which feed: E (reel 0), or D (reel 1, a dual-material head).")
+@click.option("--inserted", "answer_inserted", is_flag=True, default=None,
+              help="Answer that the drive has taken the filament (away from a terminal).")
+@dry_run_option
+@json_option
+@click.pass_context
+def load_cmd(ctx, feed, answer_inserted, dry_run, as_json) -> None:
+    """Load a feed: push the filament in until the drive takes it; the printer does the rest."""
+    from robox.maintenance import Load
+
+    def make(printer, answers, ask, say, dry_run):
+        return Load(printer, answers, ask, say, dry_run, feed=feed)
+
+    _run(ctx, make, {"inserted": answer_inserted}, dry_run, as_json)
