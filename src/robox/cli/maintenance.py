@@ -12,6 +12,9 @@ from robox.cli.common import at_terminal, emit_json, json_option
 
 yes_answer = click.option("-y", "--yes", "answer_yes", is_flag=True, default=None,
                           help="Answer the question yes (needed away from a terminal).")
+feed_option = click.option("--feed", type=click.Choice(["E", "D"]), default="E",
+                           show_default=True,
+                           help="Which feed: E (reel 0), or D (reel 1, a dual-material head).")
 dry_run_option = click.option("--dry-run", is_flag=True,
                               help="Show the steps; send nothing that moves or heats.")
 
@@ -96,8 +99,7 @@ def level_gantry_cmd(ctx, answer_yes, dry_run, as_json) -> None:
 
 
 @click.command("unload")
-@click.option("--feed", type=click.Choice(["E", "D"]), default="E", show_default=True,
-              help="Which feed: E (reel 0), or D (reel 1, a dual-material head).")
+@feed_option
 @yes_answer
 @dry_run_option
 @json_option
@@ -157,8 +159,7 @@ def eject_stuck_cmd(ctx, answer_yes, dry_run, as_json) -> None:
 
 
 @click.command("load")
-@click.option("--feed", type=click.Choice(["E", "D"]), default="E", show_default=True,
-              help="Which feed: E (reel 0), or D (reel 1, a dual-material head).")
+@feed_option
 @click.option("--inserted", "answer_inserted", is_flag=True, default=None,
               help="Answer that the drive has taken the filament (away from a terminal).")
 @dry_run_option
