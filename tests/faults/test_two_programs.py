@@ -36,7 +36,7 @@ def test_status_loops_beside_send_job_wait_never_break_it(tmp_path, env):
     subprocess.run([*CLI, "sim", "serve", "--detach", "--state", str(state)], env=env,
                    check=True, capture_output=True, timeout=120)
     job = tmp_path / "part.gcode"
-    job.write_bytes(b"G28 X Y\n" + b"G1 X20 Y20 F6000\nG1 X150 Y100\n" * 300)
+    job.write_bytes(b"G28 X Y\n" + b"G1 X20 Y20 F6000\nG1 X150 Y100\n" * 3000)
     try:
         # (a status may hold the port the moment send-job opens it: send-job waits for
         # it, as a user running both would have it do; the status runs are refused)
