@@ -169,7 +169,8 @@ class Firmware:
         command = self.command
         line_ready = command.line is not None and (command.waiting is None
                                                    or command.waiting.next_pass())
-        return bool((usb.received > command.inert_bytes() and not command.deaf) or line_ready
+        return bool((usb.received and usb.received > command.inert_bytes()
+                     and not command.deaf) or line_ready
                     or (self._usb_coming() and self.job.running
                         and not self._only_motion_awaited())
                     or self.heaters.conversion_ready
