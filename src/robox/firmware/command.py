@@ -54,6 +54,25 @@ VARIABLE: Final = {0x92: (12, 8, 4), 0x95: (4, 0, 4), 0xA0: (4, 2, 2), 0xA2: (4,
                    0xA4: (4, 2, 2), 0xF0: (12, 8, 4)}
 
 
+UNKNOWN_CODE: Final = -1
+HEADER_INCOMPLETE: Final = -2
+
+
+def parameter_length(buf: bytes | bytearray) -> int:
+    """The parameter bytes of the Robox command whose code starts `buf`: fixed, or its
+    header's count; UNKNOWN_CODE for a code the firmware does not know, HEADER_INCOMPLETE
+    while a counted header is not all there."""
+    code = buf[0]
+    if code in FIXED:
+        return FIXED[code]
+    if code in VARIABLE:
+        header, at, digits = VARIABLE[code]
+        if len(buf) < 1 + header:
+            return HEADER_INCOMPLETE
+        return header + (get_hex(buf[1 + at : 1 + at + digits]) & 0xFFFF)
+    return UNKNOWN_CODE
+
+
 def _no_reply(response: bytes) -> None:
     """Where a line's response goes before any line has run."""
 
@@ -170,17 +189,10 @@ class Command:
             head = bytes(buf[:13])
             if len(head) < 13:
                 head += self.fw.hw.usb.peek(13 - len(head))
-        code = head[0]
-        if code in FIXED:
-            length = 1 + FIXED[code]
-        elif code in VARIABLE:
-            header, at, digits = VARIABLE[code]
-            if len(head) < 1 + header:
-                return 0
-            length = 1 + header + (get_hex(head[1 + at : 1 + at + digits]) & 0xFFFF)
-        else:
+        n = parameter_length(head)
+        if n < 0:
             return 0
-        return max(0, min(length - 1, RECEIVE_BUFFER - 1) - have)
+        return max(0, min(n, RECEIVE_BUFFER - 1) - have)
 
     def busy_line(self) -> bool:
         """True while a line runs here (the job engine waits, as on the printer)."""
@@ -243,18 +255,11 @@ class Command:
     def _robox(self) -> int:
         buf = self.buffer
         code = buf[0]
-        if code in FIXED:
-            length = FIXED[code]
-        elif code in VARIABLE:
-            header, at, digits = VARIABLE[code]
-            if len(buf) < 1 + header:
-                return 0
-            count = get_hex(buf[1 + at : 1 + at + digits]) & 0xFFFF
-            length = header + count
-        else:
+        length = parameter_length(buf)
+        if length == UNKNOWN_CODE:
             self.errors.set(ErrorBit.BAD_COMMAND)
             return 1
-        if len(buf) < 1 + length:
+        if length == HEADER_INCOMPLETE or len(buf) < 1 + length:
             return 0
         params = bytes(buf[1 : 1 + length])
         self._dispatch(code, params)
