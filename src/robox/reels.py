@@ -137,19 +137,11 @@ class Definition:
     @classmethod
     def from_fields(cls, values: dict) -> Definition:
         """What a reel EEPROM's fields (formats.eeprom.fields_of) say, unchecked."""
-        return cls(
-            id=values["filament_id"], name=values["friendly_name"],
-            material_type=type_name(values["material_type"]),
-            colour=values["display_colour"][:6],
-            nozzle_c=values["nozzle_temperature"],
-            first_layer_nozzle_c=values["first_layer_nozzle_temperature"],
-            bed_c=values["bed_temperature"],
-            first_layer_bed_c=values["first_layer_bed_temperature"],
-            ambient_c=values["ambient_temperature"],
-            diameter_mm=values["filament_diameter"],
-            filament_multiplier=values["filament_multiplier"],
-            feed_rate_multiplier=values["feed_rate_multiplier"],
-            remaining_m=values["remaining_filament"] / 1000.0)
+        given = {key: values[name] for key, name in FIELD_OF.items()}
+        given["material_type"] = type_name(given["material_type"])
+        given["colour"] = given["colour"][:6]
+        given["remaining_m"] /= 1000.0
+        return cls(**given)
 
     # ------------------------------------------------------------ checking
     def check(self) -> Definition:
@@ -194,21 +186,12 @@ class Definition:
     def assignments(self) -> dict[str, str]:
         """The reel EEPROM's fields for this definition (remaining length only when
         given), each checked against its field."""
-        out = {
-            "filament_id": self.id,
-            "friendly_name": self.name,
-            "material_type": type_char(self.material_type),
-            "display_colour": self.colour.lstrip("#").upper(),
-            "nozzle_temperature": self.nozzle_c,
-            "first_layer_nozzle_temperature": self.first_layer_nozzle_c,
-            "bed_temperature": self.bed_c,
-            "first_layer_bed_temperature": self.first_layer_bed_c,
-            "ambient_temperature": self.ambient_c,
-            "filament_diameter": self.diameter_mm,
-            "filament_multiplier": self.filament_multiplier,
-            "feed_rate_multiplier": self.feed_rate_multiplier,
-        }
-        if self.remaining_m is not None:
+        out = {name: getattr(self, key) for key, name in FIELD_OF.items()}
+        out["material_type"] = type_char(self.material_type)
+        out["display_colour"] = self.colour.lstrip("#").upper()
+        if self.remaining_m is None:
+            del out["remaining_filament"]
+        else:
             out["remaining_filament"] = self.remaining_m * 1000.0
         shown: dict[str, str] = {}
         for name, value in out.items():
@@ -217,14 +200,14 @@ class Definition:
                 try:
                     float8.encode_checked(float(value))
                 except UsageError:
-                    raise UsageError(f"{_key_of(name)}: {value:g} does not fit in the "
+                    raise UsageError(f"{KEY_OF[name]}: {value:g} does not fit in the "
                                      "EEPROM's 8 characters") from None
                 shown[name] = float8.shortest(float(value))
             else:
                 try:
                     f.encode(str(value))
                 except UsageError as exc:
-                    raise UsageError(f"{_key_of(name)}: {exc}") from None
+                    raise UsageError(f"{KEY_OF[name]}: {exc}") from None
                 shown[name] = str(value)
         return shown
 
@@ -244,18 +227,16 @@ class Definition:
         return out
 
 
-_KEYS = {"filament_id": "id", "friendly_name": "name", "material_type": "material_type",
-         "display_colour": "colour", "nozzle_temperature": "nozzle_c",
-         "first_layer_nozzle_temperature": "first_layer_nozzle_c",
-         "bed_temperature": "bed_c", "first_layer_bed_temperature": "first_layer_bed_c",
-         "ambient_temperature": "ambient_c", "filament_diameter": "diameter_mm",
-         "filament_multiplier": "filament_multiplier",
-         "feed_rate_multiplier": "feed_rate_multiplier",
-         "remaining_filament": "remaining_m"}
-
-
-def _key_of(field_name: str) -> str:
-    return _KEYS.get(field_name, field_name)
+#: each definition key's reel EEPROM field (spec/eeprom.md)
+FIELD_OF = {"id": "filament_id", "name": "friendly_name", "material_type": "material_type",
+            "colour": "display_colour", "nozzle_c": "nozzle_temperature",
+            "first_layer_nozzle_c": "first_layer_nozzle_temperature",
+            "bed_c": "bed_temperature", "first_layer_bed_c": "first_layer_bed_temperature",
+            "ambient_c": "ambient_temperature", "diameter_mm": "filament_diameter",
+            "filament_multiplier": "filament_multiplier",
+            "feed_rate_multiplier": "feed_rate_multiplier",
+            "remaining_m": "remaining_filament"}
+KEY_OF = {name: key for key, name in FIELD_OF.items()}
 
 
 def _entry(key: str, type_: str, nozzle: float, bed: float, ambient: float, colour: str,
