@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 from robox.errors import RoboxError, UsageError
 from robox.formats.heads import head_kind, head_valves, max_temperature
 from robox.formats.protocol import error_names
+from robox.host.client import Status
 
 #: how close a nozzle must come to its target before the sequence goes on (AutoMaker's)
 TEMPERATURE_MARGIN_C = 5.0
@@ -157,21 +158,31 @@ class Sequence:
             self.printer.gcode(line + "\r")
             self.wait_idle(known, MOVE_TIMEOUT_S)
 
-    def wait_idle(self, known_errors: int, timeout_s: float) -> None:
-        """Until two looks POLL_S apart find the printer idle (a line between two of
-        its moves, homing say, can show idle for a moment)."""
+    def watch(self, known_errors: int, until: Callable[[Status], bool], timeout_s: float,
+              failure: str) -> None:
+        """Look at the status every POLL_S until `until(status)` holds; a fresh error, or
+        `timeout_s` gone by (RoboxError `failure`), ends the wait."""
         start = time.monotonic()
-        idle = 0
         while True:
             status = self.printer.status()
             self.check_errors(known_errors)
-            idle = idle + 1 if not status.busy else 0
-            if idle >= 2:
+            if until(status):
                 return
             if time.monotonic() - start > timeout_s:
-                raise RoboxError(f"{self.name}: the printer was still busy after "
-                                 f"{timeout_s:g} s")
+                raise RoboxError(f"{self.name}: {failure}")
             self.printer.idle(POLL_S)
+
+    def wait_idle(self, known_errors: int, timeout_s: float) -> None:
+        """Until two looks POLL_S apart find the printer idle (a line between two of
+        its moves, homing say, can show idle for a moment)."""
+        idle = [0]
+
+        def twice_idle(status: Status) -> bool:
+            idle[0] = idle[0] + 1 if not status.busy else 0
+            return idle[0] >= 2
+
+        self.watch(known_errors, twice_idle, timeout_s,
+                   f"the printer was still busy after {timeout_s:g} s")
 
     def check_errors(self, known: int) -> None:
         fresh = self.printer.errors() & ~known
@@ -190,20 +201,15 @@ class Sequence:
         self.heating = True
         known = self.printer.errors()
         self.printer.gcode(f"M104 {words}\r")
-        start = time.monotonic()
-        while True:
-            status = self.printer.status()
-            temps = status.temperatures
-            self.check_errors(known)
+
+        def hot(status: Status) -> bool:
             if not status.head_power:
                 raise RoboxError(f"{self.name}: the head's power is off (errors: "
                                  f"{', '.join(error_names(self.printer.errors())) or 'none'})")
-            if all(temps[f"nozzle{n}"]["measured"] >= t - TEMPERATURE_MARGIN_C
-                   for n, t in targets.items()):
-                return
-            if time.monotonic() - start > HEAT_TIMEOUT_S:
-                raise RoboxError(f"{self.name}: the nozzle did not reach its temperature")
-            self.printer.idle(POLL_S)
+            return all(status.temperatures[f"nozzle{n}"]["measured"] >= t - TEMPERATURE_MARGIN_C
+                       for n, t in targets.items())
+
+        self.watch(known, hot, HEAT_TIMEOUT_S, "the nozzle did not reach its temperature")
 
     def cool(self, nozzle: int, target: float) -> None:
         """Set a nozzle's target below where it is and wait until it has come down to it
@@ -215,15 +221,9 @@ class Sequence:
             return
         known = self.printer.errors()
         self.printer.gcode(f"M104 {word}{target:g}\r")
-        start = time.monotonic()
-        while True:
-            measured = self.printer.status().temperatures[f"nozzle{nozzle}"]["measured"]
-            self.check_errors(known)
-            if measured <= target + TEMPERATURE_MARGIN_C:
-                return
-            if time.monotonic() - start > HEAT_TIMEOUT_S:
-                raise RoboxError(f"{self.name}: the nozzle did not cool to {target:g} °C")
-            self.printer.idle(POLL_S)
+        self.watch(known, lambda status: status.temperatures[f"nozzle{nozzle}"]["measured"]
+                   <= target + TEMPERATURE_MARGIN_C, HEAT_TIMEOUT_S,
+                   f"the nozzle did not cool to {target:g} °C")
 
 
 def purge_temperature(last_c: float, reel_c: float, head_max_c: float) -> float:
