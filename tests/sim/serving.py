@@ -7,12 +7,13 @@ import sys
 
 
 @contextlib.contextmanager
-def served(state, speed: float | None = None):
+def served(state, speed: float | None = None, options: tuple[str, ...] = ()):
     """Yields the pty path; on exit sends SIGTERM and checks a clean stop. `speed`: the
-    clock paced to the wall's (1 = real time), else as fast as the work needs."""
+    clock paced to the wall's (1 = real time), else as fast as the work needs; `options`:
+    more of `sim serve`'s."""
     pace = ["--speed", str(speed)] if speed is not None else []
     proc = subprocess.Popen([sys.executable, "-m", "robox.cli", "sim", "serve", "--state",
-                             str(state), *pace], stdout=subprocess.PIPE,
+                             str(state), *pace, *options], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
         yield proc.stdout.readline().strip()

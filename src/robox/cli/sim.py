@@ -16,6 +16,59 @@ STATE_OPTION = click.option("--state", "state_dir", type=click.Path(file_okay=Fa
                             help="State directory (default: the per-user virtual printer).")
 
 
+def _pair(ctx, param, value):
+    """'A,B' as two floats."""
+    if value is None:
+        return None
+    parts = value.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return [float(parts[0]), float(parts[1])]
+    except ValueError:
+        raise click.BadParameter(f"{value!r}: two numbers with a comma between") from None
+
+
+def flaw_options(f):
+    """The head's true build, for `sim serve` and `sim head`."""
+    for option in reversed((
+            click.option("--nozzle-z-difference", "z_difference", type=float, metavar="MM",
+                         help="Nozzle 1's tip sits MM lower than nozzle 0's (negative: "
+                              "higher); the Z probe finds it."),
+            click.option("--b-open", "b_open", callback=_pair, metavar="B0,B1",
+                         help="The B positions where nozzle 0's needle (positive) and "
+                              "nozzle 1's (negative) just open; the valve follows them."),
+            click.option("--xy-offset", "xy_offset", callback=_pair, metavar="DX,DY",
+                         help="Nozzle 1 sits DX, DY mm from where the head's EEPROM puts "
+                              "it, relative to nozzle 0."))):
+        f = option(f)
+    return f
+
+
+def _edit_flaws(directory: Path, z_difference, b_open, xy_offset, perfect: bool = False,
+                who: str = "sim head") -> dict:
+    """Record the head's true build in the state directory, under its lock."""
+    from robox.locks import DirectoryLock
+    from robox.sim.printer import check_flaws, create_state, read_flaws, write_flaws
+
+    create_state(directory)
+    lock = DirectoryLock(directory, who)
+    try:
+        flaws = {} if perfect else read_flaws(directory)
+        for key, value in (("nozzle_z_difference_mm", z_difference), ("b_open", b_open),
+                           ("xy_offset_mm", xy_offset)):
+            if value is not None:
+                flaws[key] = value
+        try:
+            flaws = check_flaws(flaws)
+        except ValueError as e:
+            raise UsageError(f"virtual head: {e}") from None
+        write_flaws(directory, flaws)
+    finally:
+        lock.release()
+    return flaws
+
+
 def _directory(state_dir: str | None) -> Path:
     """The state directory: --state, else the one `--device sim:DIR` (or sim-once:DIR,
     or $ROBOX_DEVICE) names, else the per-user virtual printer's."""
@@ -51,13 +104,15 @@ def sim() -> None:
 @click.option("--speed", type=float, help="Pace simulated time at FACTOR times the wall clock.")
 @click.option("--detach", is_flag=True,
               help="Serve in the background; print the pseudo-terminal's path and return.")
+@flaw_options
 def serve_cmd(state_dir: str | None, realtime: bool, speed: float | None,
-              detach: bool) -> None:
+              detach: bool, z_difference, b_open, xy_offset) -> None:
     """Serve the virtual printer on a pseudo-terminal; its path is the first line printed.
 
     Without --realtime or --speed the clock runs as fast as the work needs. Stops on
     SIGINT or SIGTERM (`robox-cli sim stop`), leaving the state files consistent. One
-    state directory is served by one process at a time.
+    state directory is served by one process at a time. The head options record its
+    true build in the state first (as `sim head` does).
     """
     from robox.sim import served
     from robox.sim.serve import serve_forever
@@ -68,6 +123,8 @@ def serve_cmd(state_dir: str | None, realtime: bool, speed: float | None,
         raise UsageError("--speed must be positive")
     pace = 1.0 if realtime else speed
     directory = _directory(state_dir)
+    if (z_difference, b_open, xy_offset) != (None, None, None):
+        _edit_flaws(directory, z_difference, b_open, xy_offset, who="sim serve")
     if detach:
         record = served.start(directory, pace)
         click.echo(record["pty"])
@@ -161,6 +218,36 @@ def load_cmd(state_dir: str | None, feed: str, metres: float, where: str,
 def unload_cmd(state_dir: str | None, feed: str, as_json: bool) -> None:
     """Take the filament out of the virtual printer's feeds (see `sim load`)."""
     _edit_feeds(_directory(state_dir), feed, None, as_json)
+
+
+@sim.command("head")
+@STATE_OPTION
+@flaw_options
+@click.option("--perfect", is_flag=True, help="Forget every flaw first: the head exactly "
+                                               "as its EEPROM says.")
+@json_option
+def head_cmd(state_dir, z_difference, b_open, xy_offset, perfect, as_json) -> None:
+    """Give the virtual printer's head true imperfections, or show them.
+
+    A real head's nozzles are not where its EEPROM says until it is calibrated; these
+    make the virtual one so: the Z probe, the valve and the printed alignment pattern
+    follow them, and `robox-cli calibrate` measures them. Recorded in the state
+    directory (flaws.json) and taken at the next power-up; a printer being served is
+    refused (`robox-cli sim stop` it first)."""
+    flaws = _edit_flaws(_directory(state_dir), z_difference, b_open, xy_offset, perfect)
+    if as_json:
+        emit_json({"state": str(_directory(state_dir)), "flaws": flaws})
+        return
+    if not flaws:
+        click.echo("head: perfect (as its EEPROM says)")
+    if "nozzle_z_difference_mm" in flaws:
+        click.echo(f"nozzle 1's tip {flaws['nozzle_z_difference_mm']:g} mm below nozzle 0's")
+    if "b_open" in flaws:
+        b0, b1 = flaws["b_open"]
+        click.echo(f"needles open at B {b0:g} (nozzle 0) and {b1:g} (nozzle 1)")
+    if "xy_offset_mm" in flaws:
+        dx, dy = flaws["xy_offset_mm"]
+        click.echo(f"nozzle 1 off by X {dx:g} mm, Y {dy:g} mm")
 
 
 def _edit_feeds(directory: Path, feed: str, value: dict | None, as_json: bool) -> None:

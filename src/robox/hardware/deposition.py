@@ -136,6 +136,7 @@ class Deposition:
         self._feed_axis = E_AXIS
         self._feed_mm3 = 0.0
         self.slipped_steps = 0
+        self.released_mm3 = [0.0] * nozzles  # plastic that has left each nozzle
 
     # ------------------------------------------------------------ machine calls
     def attach(self, machine: Machine) -> None:
@@ -244,6 +245,7 @@ class Deposition:
         void = self.void[n]
         swallowed = mm3 if mm3 < void else void
         self.void[n] = void - swallowed
+        self.released_mm3[n] += mm3 - swallowed
         if not self.recording:
             return
         m = self.machine

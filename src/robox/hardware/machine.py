@@ -9,7 +9,9 @@ point:
 - Z: two leadscrew motors (ZA at X = -37.546 mm, ZB at X = 251.5 mm); the
   nozzle height is the gantry line between them at the carriage's X, and
   the Z switch is actuated at height 0 and below, the Z-top switch at 95 mm
-  and above.
+  and above. The Z switch is the selected nozzle touching the bed: a head whose
+  nozzle 1 sits lower (`nozzle1_drop`, a virtual printer's `--nozzle-z-difference`)
+  trips it that much higher with the valve on nozzle 1's side of its switch.
 - B: the valve; its switch is actuated at 0 and above (the nozzle-0 side). At
   power-up the valve rests 0.7 B units (1,750 microsteps) on that side, where the
   recording rig's machine starts it (`VALVE_REST_STEPS`): how far the first tool
@@ -181,6 +183,9 @@ class Machine:
     supply_24v: bool = True
     hardware_revision: int = 2
     motors_on: bool = False
+    # the head's build: how far (Z microsteps) nozzle 1's tip sits below nozzle 0's (the
+    # Z switch trips when the nozzle the valve has selected touches the bed)
+    nozzle1_drop: int = 0
     # where plastic lands (robox.hardware.deposition), watched only where attached
     deposition: Deposition | None = None
 
@@ -247,6 +252,13 @@ class Machine:
         x_mm = self.x / X_STEPS_PER_MM
         return self.za + (self.zb - self.za) * (x_mm - ZA_X_MM) / (ZB_X_MM - ZA_X_MM)
 
+    def tip_height(self) -> float:
+        """Z microsteps of the selected nozzle's tip over the bed: nozzle 0's on the
+        positive side of the valve's switch, nozzle 1's (`nozzle1_drop` lower) beyond it."""
+        if self.nozzle1_drop and self.b < 0:
+            return self.nozzle_height() - self.nozzle1_drop
+        return self.nozzle_height()
+
     def filament_present(self, axis: int) -> bool:
         f = self.filament[axis]
         sensor = SENSOR_STEPS[axis]
@@ -263,7 +275,7 @@ class Machine:
         if axis == Y:
             return self.y <= 0
         if axis == Z:
-            return self.nozzle_height() <= 0
+            return self.tip_height() <= 0
         if axis == B:
             return self.b >= 0
         return self.filament_present(axis)
@@ -307,7 +319,10 @@ class Machine:
             return abs(self.y) + 1
         if axis == Z:
             slope = abs(self.zb - self.za) / ((ZB_X_MM - ZA_X_MM) * X_STEPS_PER_MM)
-            return int(abs(self.nozzle_height()) / (1.0 + slope)) + 1
+            margin = int(abs(self.tip_height()) / (1.0 + slope)) + 1
+            if self.nozzle1_drop:  # the valve crossing its switch selects the other tip
+                margin = min(margin, abs(self.b) + 1)
+            return margin
         if axis == B:
             return abs(self.b) + 1
         f = self.filament[axis]

@@ -11,6 +11,10 @@ offline tools):
                     load`): {"E": {"length_mm": .., "tip_mm": ..}, "D": ...}, tip_mm
                     along the path from the drive (380: at the nozzle); saved as the
                     printer switches off. Without it the feeds are empty, as at power-up.
+    flaws.json      the head's true build, where it differs from a perfect head (`sim
+                    serve --nozzle-z-difference MM --b-open B0,B1 --xy-offset DX,DY`):
+                    {"nozzle_z_difference_mm": .., "b_open": [..], "xy_offset_mm": [..]}.
+                    The machine's probing and valve follow it; the calibrations measure it.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from robox.hardware.deposition import Deposition
 from robox.hardware.eeprom import EepromChip
 from robox.hardware.eeprom_bus import EepromBus
 from robox.hardware.flash import Flash
-from robox.hardware.machine import NOZZLE_MM, STEPS_PER_MM, D, E
+from robox.hardware.machine import NOZZLE_MM, STEPS_PER_MM, D, E, Z
 from robox.hardware.sdcard import SdCard
 from robox.hardware.storage import FileStorage, MemoryStorage
 from robox.hardware.usb import PACKET_SIZE
@@ -46,6 +50,51 @@ CHIP_FILES = {EepromIndex.HEAD: "head.eeprom", EepromIndex.REEL0: "reel0.eeprom"
               EepromIndex.REEL1: "reel1.eeprom"}
 FILAMENT_FILE = "filament.json"
 FEEDS = {"E": E, "D": D}
+FLAWS_FILE = "flaws.json"
+#: how far a virtual head may be from perfect: beyond this no calibration could help
+FLAW_LIMITS = {"nozzle_z_difference_mm": 2.0, "b_open": 2.0, "xy_offset_mm": 1.0}
+
+
+def read_flaws(directory: Path) -> dict:
+    """The head's true build a state directory records (an empty dict: perfect, the
+    head exactly as its EEPROM says)."""
+    path = directory / FLAWS_FILE
+    if not path.exists():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+        return check_flaws(data)
+    except (OSError, ValueError, TypeError, AttributeError) as e:
+        raise ImageError(f"{path}: not a head flaws record ({e})") from None
+
+
+def check_flaws(data: dict) -> dict:
+    """`data` with its values checked (ValueError names the one out of bounds)."""
+    out: dict = {}
+    for key, value in data.items():
+        if key not in FLAW_LIMITS:
+            raise ValueError(f"unknown flaw {key!r}")
+        values = [float(v) for v in value] if isinstance(value, list) else [float(value)]
+        if len(values) != (1 if key == "nozzle_z_difference_mm" else 2):
+            raise ValueError(f"{key}: {value!r}")
+        for v in values:
+            if not (math.isfinite(v) and abs(v) <= FLAW_LIMITS[key]):
+                raise ValueError(f"{key}: {v:g} is beyond ±{FLAW_LIMITS[key]:g}")
+        if key == "b_open" and not (values[0] > 0.0 > values[1]):
+            raise ValueError("b_open: nozzle 0's needle opens at a positive B, nozzle 1's "
+                             f"at a negative one ({values[0]:g}, {values[1]:g})")
+        out[key] = values[0] if key == "nozzle_z_difference_mm" else values
+    return out
+
+
+def write_flaws(directory: Path, flaws: dict) -> None:
+    """Record the head's true build (the file goes when the head is perfect)."""
+    path = directory / FLAWS_FILE
+    if not flaws:
+        path.unlink(missing_ok=True)
+        return
+    write_atomically(path, (json.dumps(check_flaws(flaws), indent=1, sort_keys=True)
+                            + "\n").encode())
 
 
 def read_filament(directory: Path) -> dict[str, dict[str, float] | None]:
@@ -236,6 +285,10 @@ class VirtualPrinter:
         # dumps open to write in place
         self._chip_dumps: dict[int, FileStorage] = dict(self._dumps_at_power_up)
         self._filament_loaded = False
+        self.flaws = read_flaws(self.state_dir) if self.state_dir is not None else {}
+        self.hw.machine.nozzle1_drop = round(self.flaws.get("nozzle_z_difference_mm", 0.0)
+                                             * STEPS_PER_MM[Z])
+        seats = self.flaws.get("b_open")
         if self.state_dir is not None:
             for name, feed in read_filament(self.state_dir).items():
                 if feed is not None:
@@ -248,6 +301,7 @@ class VirtualPrinter:
             Deposition(head_valves_of(chips.get(EepromIndex.HEAD)),
                        (reel_diameter_of(chips.get(EepromIndex.REEL0)),
                         reel_diameter_of(chips.get(EepromIndex.REEL1))),
+                       (seats[0], seats[1]) if seats else
                        head_seats_of(chips.get(EepromIndex.HEAD)),
                        recording=False).attach(self.hw.machine)
         self.firmware = Firmware(self.hw)
