@@ -134,6 +134,15 @@ EXAMPLES: list[tuple[str, object, list[str]]] = [
     ("robox-cli head-change --yes --swapped", None,
      ["robox-cli head-change --yes --swapped --json | jq -e "
       "'.measured.new_head.type_code == \"RBX01-SM\"'"]),
+    ("robox-cli calibrate nozzle-height [--paper-z MM] --yes", None,
+     ["robox-cli calibrate nozzle-height --paper-z 0.1 --yes --json | jq -e "
+      "'.written.head.nozzle0_z_offset < 0'"]),
+    ("robox-cli calibrate nozzle-opening [--opens-at B0,B1] --yes", None,
+     ["robox-cli sim stop", "robox-cli sim load --state {printer}",
+      "robox-cli calibrate nozzle-opening --opens-at 0.8,-0.8 --yes --json | jq -e "
+      "'.written.head.nozzle0_b_offset == 0.78'"]),
+    ("robox-cli calibrate xy [--x-pair A-K --y-pair 1-11] --yes", None,
+     ["robox-cli calibrate xy --x-pair F --y-pair 6 --yes"]),
     ("robox-cli update-firmware robox.bin", _released, ["robox-cli update-firmware robox.bin"]),
     ("robox-cli reel materials", None, ["robox-cli reel materials"]),
     ("robox-cli reel program PETG --remaining 240", None,
@@ -211,6 +220,10 @@ EXAMPLES: list[tuple[str, object, list[str]]] = [
             "robox-cli sim load --state {other} --feed both --metres 240 --at drive"]),
     ("robox-cli sim unload [--state DIR] [--feed E|D|both]", None,
      ["robox-cli sim unload --state {other} --feed D", "robox-cli sim unload --state {other}"]),
+    ("robox-cli sim head [--state DIR] --nozzle-z-difference 0.12 --b-open 0.82,-0.66 "
+     "--xy-offset 0.1,-0.05", None,
+     ["robox-cli sim head --state {other} --nozzle-z-difference 0.12 --b-open 0.82,-0.66 "
+      "--xy-offset 0.1,-0.05", "robox-cli sim head --state {other} --perfect"]),
     ("robox-cli printers", None, ["robox-cli printers"]),
     # last: a formatted head has no thermistor data, and the printer then cuts the head's
     # power for over-temperature at its next sample, as a real one would

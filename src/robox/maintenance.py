@@ -67,6 +67,8 @@ class Declined(RoboxError):
 
 
 Ask = Callable[[str, str], bool]
+#: a question with several answers (key, text, choices): the one chosen
+Choose = Callable[[str, str, tuple[str, ...]], str]
 
 
 @dataclass
@@ -87,11 +89,13 @@ class Sequence:
     #: the options that answer its questions (away from a terminal, all must be given)
     questions: tuple[str, ...] = ("yes",)
 
-    def __init__(self, printer, answers: dict[str, bool], ask: Ask | None,
-                 say: Callable[[str], None], dry_run: bool = False):
+    def __init__(self, printer, answers: dict, ask: Ask | None,
+                 say: Callable[[str], None], dry_run: bool = False,
+                 choose: Choose | None = None):
         self.printer = printer
         self.answers = answers
         self.ask = ask
+        self.choose = choose
         self.say = say
         self.dry_run = dry_run
         self.report = Report(self.name, dry_run)

@@ -16,6 +16,8 @@ from robox.cli.common import RoboxGroup
 LAZY_COMMANDS = {
     "abort": ("robox.cli.printer", "abort_cmd",
               "Abort the job and switch the heaters off (with no job, the heaters only)."),
+    "calibrate": ("robox.cli.maintenance", "calibrate",
+                  "Calibrate the head: nozzle heights, needle openings, X/Y alignment."),
     "eject-stuck": ("robox.cli.maintenance", "eject_stuck_cmd",
                     "Free filament stuck in the head: heat, push through, cool and pull it "
                     "out."),

@@ -1,5 +1,5 @@
-"""robox-cli purge and level-gantry: AutoMaker's looking-after jobs as guided sequences
-(src/robox/maintenance.py)."""
+"""robox-cli purge, level-gantry, load, unload, head-change, eject-stuck and calibrate:
+AutoMaker's looking-after jobs as guided sequences (robox.maintenance, robox.calibration)."""
 
 from __future__ import annotations
 
@@ -23,6 +23,10 @@ def _ask(key: str, text: str) -> bool:
     return click.confirm(text, default=False, err=True)
 
 
+def _choose(key: str, text: str, choices: tuple[str, ...]) -> str:
+    return click.prompt(text, type=click.Choice(choices, case_sensitive=False), err=True)
+
+
 def _run(ctx, make, answers: dict, dry_run: bool, as_json: bool, read_printer=None):
     """Open the printer, build the sequence (`make(printer, ...)`) and run it; the
     report as lines or JSON."""
@@ -33,6 +37,7 @@ def _run(ctx, make, answers: dict, dry_run: bool, as_json: bool, read_printer=No
     with device(ctx) if (read_printer or not dry_run) else contextlib.nullcontext() as printer:
         facts = read_printer(printer) if read_printer else {}
         sequence = make(printer, answers, ask, say, dry_run, **facts)
+        sequence.choose = _choose if ask is not None else None
         report = sequence.run()
     if as_json:
         emit_json(asdict(report))
@@ -173,3 +178,92 @@ def load_cmd(ctx, feed, answer_inserted, dry_run, as_json) -> None:
         return Load(printer, answers, ask, say, dry_run, feed=feed)
 
     _run(ctx, make, {"inserted": answer_inserted}, dry_run, as_json)
+
+
+@click.group("calibrate")
+def calibrate() -> None:
+    """Calibrate the head: nozzle heights, needle openings, X/Y alignment.
+
+    Each is a guided sequence that writes what it measured to the head's EEPROM; Ctrl-C
+    or an error puts the head's data back and switches the heaters off."""
+
+
+def _calibrate(ctx, kind, answers: dict, dry_run: bool, as_json: bool) -> None:
+    def make(printer, answers, ask, say, dry_run, head, reels):
+        return kind(printer, answers, ask, say, dry_run, head=head, reels=reels)
+
+    _run(ctx, make, answers, dry_run, as_json, read_printer=_head_and_reels)
+
+
+@calibrate.command("nozzle-height")
+@yes_answer
+@click.option("--paper-z", type=click.FloatRange(0.0, 2.0), metavar="MM",
+              help="Answer the paper question: the Z at which a sheet of paper just drags "
+                   "under nozzle 0 (away from a terminal).")
+@dry_run_option
+@json_option
+@click.pass_context
+def nozzle_height_cmd(ctx, answer_yes, paper_z, dry_run, as_json) -> None:
+    """The nozzles' Z offsets: their Z difference probed on the bed, nozzle 0's height
+    judged with a sheet of paper.
+
+    As AutoMaker's nozzle height calibration: offsets cleared, the head heated and the
+    gantry levelled, the bed probed eleven times with the nozzles in turn (G28 Z?,
+    M113), then nozzle 0 raised 0.05 mm at a time until the paper drags."""
+    from robox.calibration import NozzleHeight
+
+    _calibrate(ctx, NozzleHeight, {"yes": answer_yes, "paper_z": paper_z}, dry_run, as_json)
+
+
+def _pair(ctx, param, value):
+    if value is None:
+        return None
+    parts = value.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return [float(parts[0]), float(parts[1])]
+    except ValueError:
+        raise click.BadParameter(f"{value!r}: two numbers with a comma between") from None
+
+
+@calibrate.command("nozzle-opening")
+@yes_answer
+@click.option("--opens-at", callback=_pair, metavar="B0,B1",
+              help="Answer the opening questions: the B shown when plastic first came out "
+                   "of nozzle 0 and of nozzle 1 (negative), away from a terminal.")
+@dry_run_option
+@json_option
+@click.pass_context
+def nozzle_opening_cmd(ctx, answer_yes, opens_at, dry_run, as_json) -> None:
+    """The needles' B offsets: where each nozzle's needle opens, watched with filament in.
+
+    Needs filament at the nozzle. Each feed is pressurised against its shut needle and
+    the valve opened 0.02 B at a time; the last B it stayed shut at is written."""
+    from robox.calibration import NozzleOpening
+
+    if opens_at is not None and not opens_at[0] > 0.0 > opens_at[1]:
+        raise click.BadParameter("nozzle 0's B is positive, nozzle 1's negative",
+                                 param_hint="--opens-at")
+    _calibrate(ctx, NozzleOpening, {"yes": answer_yes, "opens_at": opens_at}, dry_run,
+               as_json)
+
+
+@calibrate.command("xy")
+@yes_answer
+@click.option("--x-pair", type=click.Choice(list("ABCDEFGHIJK"), case_sensitive=False),
+              help="Answer which pair of the lines across X lines up (A to K).")
+@click.option("--y-pair", type=click.Choice([str(k) for k in range(1, 12)]),
+              help="Answer which pair of the lines along Y lines up (1 to 11).")
+@dry_run_option
+@json_option
+@click.pass_context
+def xy_cmd(ctx, answer_yes, x_pair, y_pair, dry_run, as_json) -> None:
+    """The nozzles' X and Y alignment, from a printed pattern of lines.
+
+    As AutoMaker's: a pattern of eleven pairs of lines across X and along Y, nozzle 1's
+    shifted 0.05 mm more in each; the pair that lines up sets the offsets."""
+    from robox.calibration import XYAlignment
+
+    _calibrate(ctx, XYAlignment, {"yes": answer_yes, "x_pair": x_pair and x_pair.upper(),
+                                  "y_pair": y_pair}, dry_run, as_json)
