@@ -130,7 +130,7 @@ EXAMPLES: list[tuple[str, object, list[str]]] = [
      ["robox-cli purge --yes", "robox-cli purge --nozzle 1 --yes"]),
     ("robox-cli level-gantry --yes", None, ["robox-cli level-gantry --yes"]),
     ("robox-cli unload [--feed D] --yes", None, ["robox-cli unload --yes"]),
-    ("robox-cli eject-stuck --yes", None, ["robox-cli eject-stuck --yes"]),
+    ("robox-cli eject-stuck [--nozzle N] --yes", None, ["robox-cli eject-stuck --yes"]),
     ("robox-cli head-change --yes --swapped", None,
      ["robox-cli head-change --yes --swapped --json | jq -e "
       "'.measured.new_head.type_code == \"RBX01-SM\"'"]),

@@ -29,7 +29,8 @@ Where AutoMaker's behaviour is followed and where not, per sequence:
 - `load`: the printer's own automatic load (the index wheel turning with nothing at the
   sensor starts it); the sequence asks while the person pushes the filament in, waits
   while the printer loads it to the nozzle and checks the sensor sees it.
-- `eject-stuck`: AutoMaker's Eject stuck material for a head with one heater.
+- `eject-stuck`: AutoMaker's Eject stuck material: a dual-material head's nozzles each
+  freed in turn with its own heater and feed (its macros' 160 °C neck and 120 mm3 push).
 - `head-change`: AutoMaker's Remove head (home, T0 with the valve shut, park at the
   front, unload every feed the head has, unlock the door), then a question while the
   head is changed and the new head's EEPROM read. Like AutoMaker it leaves the head's
@@ -421,54 +422,90 @@ class HeadChange(Sequence):
                                              "unique_id": fields["unique_id"]}}
 
 
-#: AutoMaker's eject temperatures: soft enough to draw a neck, then cool enough to snap
+#: AutoMaker's eject temperatures: soft enough to draw a neck (a dual-material head's
+#: macros: 160 °C), then cool enough to snap; and what its macros push through a nozzle
 NECK_C = 140.0
+NECK_DUAL_C = 160.0
 SNAP_C = 125.0
+PUSH_MM3 = 70.0
+PUSH_DUAL_MM3 = 120.0
 
 
 class EjectStuck(Sequence):
     """Free filament stuck in the head (AutoMaker's Eject stuck material): heat to the
     reel's first-layer temperature, push a short purge through each nozzle, then let
-    the nozzle cool while drawing the filament back: a neck at 140 °C, snapped at
-    125 °C, and the drive pulls it out until it slips."""
+    the nozzle cool while drawing the filament back: a neck at 140 °C (a dual-material
+    head: 160 °C), snapped at 125 °C, and the drive pulls it out until it slips. A
+    dual-material head's nozzles each have a heater and a feed of their own, and each is
+    freed in turn (or the one `nozzle` names)."""
 
     name = "eject-stuck"
 
     def __init__(self, *args, head: dict | None = None, reels: dict | None = None,
-                 **kwargs):
+                 nozzle: int | None = None, **kwargs):
         super().__init__(*args, **kwargs)
         self.head = head or {}
         self.reels = reels or {}
+        self.nozzle = nozzle
 
-    def steps(self) -> None:
+    def plan(self) -> list[dict]:
+        """Each heater freed: its nozzles, feed, reel temperature and neck temperature."""
         head_type = str(self.head.get("type_code", "") or "")
         if not head_type:
             raise RoboxError("eject-stuck: the head's EEPROM gives no head type (is the "
                              "head in place?)")
-        if head_kind(head_type) == "dual":
-            raise UsageError("eject-stuck: a dual-material head is not supported yet")
-        reel = self.reels.get("reel0")
-        if reel is None:
-            raise RoboxError("eject-stuck: reel0 has no valid EEPROM (is the reel in "
-                             "place?): its temperature is needed")
-        hot = min(float(reel["first_layer_nozzle_temperature"]), max_temperature(head_type))
-        nozzles = [0] if head_kind(head_type) == "plain" else [0, 1]
-        self.report.measured = {"heat_c": hot, "neck_c": NECK_C, "snap_c": SNAP_C}
-        self.question("yes", f"Eject the stuck filament? The nozzle heats to {hot:g} °C, "
+        kind = head_kind(head_type)
+        valves = head_valves(head_type)
+        nozzles = [0] if kind == "plain" else [0, 1]
+        if self.nozzle is not None:
+            if self.nozzle not in nozzles:
+                raise UsageError(f"eject-stuck: a {head_type} head has no nozzle {self.nozzle}")
+            if kind != "dual":  # one heater and one feed: both nozzles are freed together
+                raise UsageError(f"eject-stuck: a {head_type} head's nozzles share one feed; "
+                                 "they are freed together (no --nozzle)")
+            nozzles = [self.nozzle]
+        limit = max_temperature(head_type)
+        plans = []
+        for heater in (nozzles if kind == "dual" else [0]):
+            feed = valves.feeds[heater] if valves.feeds else "E"
+            which = "reel0" if feed == "E" else "reel1"
+            reel = self.reels.get(which)
+            if reel is None:
+                raise RoboxError(f"eject-stuck: {which} has no valid EEPROM (is the reel in "
+                                 "place?): its temperature is needed")
+            plans.append({"heater": heater, "feed": feed,
+                          "nozzles": [heater] if kind == "dual" else nozzles,
+                          "heat_c": min(float(reel["first_layer_nozzle_temperature"]), limit),
+                          "neck_c": NECK_DUAL_C if kind == "dual" else NECK_C,
+                          "push_mm3": PUSH_DUAL_MM3 if kind == "dual" else PUSH_MM3})
+        return plans
+
+    def steps(self) -> None:
+        plans = self.plan()
+        self.report.measured = {"heat_c": plans[0]["heat_c"], "neck_c": plans[0]["neck_c"],
+                                "snap_c": SNAP_C} if len(plans) == 1 else \
+            {f"heater{p['heater']}": {"heat_c": p["heat_c"], "neck_c": p["neck_c"],
+                                      "snap_c": SNAP_C} for p in plans}
+        which = " and ".join(f"{p['heat_c']:g} °C" for p in plans)
+        self.question("yes", f"Eject the stuck filament? The nozzle heats to {which}, "
                              "pushes a little through, then cools while the drive pulls "
                              "the filament out: hold the reel.")
         self.send("home", ["G90", "G28 X Y", "G28 Z"])
-        self.heat({0: hot})
-        for k, n in enumerate(nozzles):
-            x = 20 + 40 * k
-            self.send(f"push through nozzle {n}",
-                      [f"G0 X{x} Y0 Z8", f"T{n}", "G0 Z4", "G36 E1200 F400", "G0 B1",
-                       f"G1 X{x + 12} E70 F50", "G0 B0", "G0 Z8"])
-        self.cool(0, NECK_C)
-        self.send("draw a neck in the filament", ["G1 E-50 F2100"])
-        self.cool(0, SNAP_C)
-        self.send("snap it and pull the filament out",
-                  ["G36 E-1200 F2100", "G1 E-20 F2100"])
+        for p in plans:
+            heater, feed, word = p["heater"], p["feed"], "S" if p["heater"] == 0 else "T"
+            self.heat({heater: p["heat_c"]})
+            for n in p["nozzles"]:
+                x = 20 + 40 * n
+                self.send(f"push through nozzle {n}",
+                          [f"G0 X{x} Y0 Z8", f"T{n}", "G0 Z4", f"G36 {feed}1200 F400",
+                           "G0 B1", f"G1 X{x + 12} {feed}{p['push_mm3']:g} F50", "G0 B0",
+                           "G0 Z8"])
+            self.cool(heater, p["neck_c"])
+            self.send("draw a neck in the filament", [f"G1 {feed}-50 F2100"])
+            self.cool(heater, SNAP_C)
+            self.send(f"snap it and pull feed {feed}'s filament out",
+                      [f"G36 {feed}-1200 F2100", f"G1 {feed}-20 F2100"])
+            self.send(f"heater {heater} off", [f"M104 {word}0"])
         self.send("heaters off, the head up and away", ["M104 S0 T0", "G0 Z20", "G0 X113 Y140"])
         self.heating = False
 

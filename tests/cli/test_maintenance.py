@@ -259,6 +259,45 @@ def test_eject_stuck_pushes_through_then_cools_and_pulls_the_filament_out(loaded
     assert status(loaded)["temperatures"]["nozzle0"]["mode"] == "0"
 
 
+def test_eject_stuck_frees_each_nozzle_of_a_dual_material_head_with_its_own_heater(tmp_path):
+    """Nozzle 0 of an RBX01-DM is fed from reel 1 (D) and heated by heater 0, nozzle 1
+    from reel 0 (E) by heater 1: each is pushed through (120 mm3, AutoMaker's dual
+    macros), necked at 160 °C, snapped at 125 °C and pulled out of its drive."""
+    state = tmp_path / "p"
+    assert run("sim", "load", "--state", str(state), "--feed", "both").exit_code == 0
+    assert run("eeprom", "new", "reel", "-o", str(state / "reel1.eeprom")).exit_code == 0
+    sim = f"sim-once:{state}"
+    for args in (("write-eeprom", "head", "type_code=RBX01-DM"),
+                 ("reel", "program", "PETG"), ("reel", "program", "PLA", "--reel", "1")):
+        result = run("--device", sim, *args)
+        assert result.exit_code == 0, result.output
+    feeds = json.loads((state / "filament.json").read_text())
+    result = run("--device", sim, "eject-stuck", "--yes", "--json")
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.output)
+    pla_c = json.loads(run("reel", "materials", "--json").output)["PLA"][
+        "first_layer_nozzle_c"]
+    assert out["measured"] == {"heater0": {"heat_c": pla_c, "neck_c": 160.0, "snap_c": 125.0},
+                               "heater1": {"heat_c": 245.0, "neck_c": 160.0, "snap_c": 125.0}}
+    assert "let nozzle 0 cool to 160 °C" in out["steps"]
+    assert "let nozzle 1 cool to 125 °C" in out["steps"]
+    after = json.loads((state / "filament.json").read_text())
+    for feed in ("D", "E"):
+        assert after[feed]["tip_mm"] < 0, feed  # out of its drive
+        used = feeds[feed]["length_mm"] - after[feed]["length_mm"]
+        assert 120 / AREA_MM2 <= used <= 122 / AREA_MM2 + 1, feed
+    s = status(state)
+    assert s["temperatures"]["nozzle0"]["mode"] == "0"
+    assert s["temperatures"]["nozzle1"]["mode"] == "0"
+    result = run("--device", sim, "eject-stuck", "--nozzle", "1", "--dry-run")
+    assert "push through nozzle 1" in result.output and "nozzle 0" not in result.output
+
+
+def test_eject_stuck_with_a_nozzle_on_a_single_material_head_is_refused(loaded):
+    one_line_error(run("--device", f"sim-once:{loaded}", "eject-stuck", "--yes", "--nozzle",
+                       "1"), 2, "they are freed together")
+
+
 @pytest.mark.parametrize("at_step", [4, 6, 7])
 def test_ctrl_c_while_eject_stuck_cools_leaves_the_heater_off(loaded, monkeypatch, at_step):
     real_step = maintenance.Sequence.step

@@ -146,19 +146,23 @@ def head_change_cmd(ctx, answer_yes, answer_swapped, dry_run, as_json) -> None:
 
 
 @click.command("eject-stuck")
+@click.option("--nozzle", type=click.IntRange(0, 1),
+              help="A dual-material head: free this nozzle only (default: both).")
 @yes_answer
 @dry_run_option
 @json_option
 @click.pass_context
-def eject_stuck_cmd(ctx, answer_yes, dry_run, as_json) -> None:
+def eject_stuck_cmd(ctx, nozzle, answer_yes, dry_run, as_json) -> None:
     """Free filament stuck in the head: heat, push through, cool and pull it out.
 
     As AutoMaker's Eject stuck material: the reel's first-layer temperature, a short push
-    through each nozzle, then a neck drawn at 140 C, snapped at 125 C and pulled out."""
+    through each nozzle, then a neck drawn at 140 C (a dual-material head: 160 C),
+    snapped at 125 C and pulled out. A dual-material head's nozzles are freed in turn."""
     from robox.maintenance import EjectStuck
 
     def make(printer, answers, ask, say, dry_run, head, reels):
-        return EjectStuck(printer, answers, ask, say, dry_run, head=head, reels=reels)
+        return EjectStuck(printer, answers, ask, say, dry_run, head=head, reels=reels,
+                          nozzle=nozzle)
 
     _run(ctx, make, {"yes": answer_yes}, dry_run, as_json, read_printer=_head_and_reels)
 
