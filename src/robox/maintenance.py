@@ -356,17 +356,28 @@ class LevelGantry(Sequence):
         self.report.measured = {"z_delta_mm": value}
 
 
+def check_feed(name: str, feed: str, head: dict) -> None:
+    """A feed the head in place has (D: a dual-material head's); an unknown head is let
+    be (the printer reports what it cannot do)."""
+    head_type = str(head.get("type_code", "") or "")
+    if head_type and feed not in (*head_valves(head_type).feeds, "E"):
+        raise UsageError(f"{name}: a {head_type} head has no feed {feed} (feed D is a "
+                         "dual-material head's)")
+
+
 class Unload(Sequence):
     """Unload a feed's filament: the printer heats the nozzle, moves the carriage right
     and pulls the filament back out of the Bowden tube (M122)."""
 
     name = "unload"
 
-    def __init__(self, *args, feed: str = "E", **kwargs):
+    def __init__(self, *args, feed: str = "E", head: dict | None = None, **kwargs):
         super().__init__(*args, **kwargs)
         self.feed = feed
+        self.head = head or {}
 
     def steps(self) -> None:
+        check_feed(self.name, self.feed, self.head)
         self.question("yes", f"Unload the filament from feed {self.feed}? The nozzle heats "
                              "and the drive pulls the filament back: hold the reel.")
         self.heating = True  # (the printer heats for the unload itself)
@@ -522,14 +533,16 @@ class Load(Sequence):
     name = "load"
     questions = ("inserted",)
 
-    def __init__(self, *args, feed: str = "E", **kwargs):
+    def __init__(self, *args, feed: str = "E", head: dict | None = None, **kwargs):
         super().__init__(*args, **kwargs)
         self.feed = feed
+        self.head = head or {}
 
     def at_sensor(self) -> bool:
         return self.printer.status().raw[SENSOR_AT[self.feed]:SENSOR_AT[self.feed] + 1] == b"1"
 
     def steps(self) -> None:
+        check_feed(self.name, self.feed, self.head)
         if not self.dry_run and self.at_sensor():
             raise RoboxError(f"load: feed {self.feed} already has filament at its sensor "
                              "(robox-cli unload takes it out)")

@@ -355,3 +355,79 @@ def test_load_with_nothing_pushed_in_says_so(tmp_path):
                    "no filament reached feed E's sensor")
     one_line_error(run("--device", f"sim-once:{state}", "load"), 2,
                    "answer them with --inserted")
+
+
+def test_every_guided_command_through_the_served_printers_pty(tmp_path):
+    """Each command as a script runs it on a served printer (`sim:DIR` reaches it through
+    its pty), its questions answered by their options; `sim-once` (the pyusb backend)
+    runs each in the tests above."""
+    state = tmp_path / "p"
+    assert run("sim", "load", "--state", str(state)).exit_code == 0
+    dev = ("--device", f"sim:{state}")
+    commands = [
+        ("reel", "program", "PETG"),
+        ("reel", "show", "--json"),
+        ("purge", "--yes", "--json"),
+        ("level-gantry", "--yes", "--json"),
+        ("calibrate", "nozzle-height", "--yes", "--paper-z", "0.1", "--json"),
+        ("calibrate", "nozzle-opening", "--yes", "--opens-at", "0.72,-0.72", "--json"),
+        ("calibrate", "xy", "--yes", "--x-pair", "E", "--y-pair", "7", "--json"),
+        ("eject-stuck", "--yes", "--json"),
+        ("head-change", "--yes", "--swapped", "--json"),
+    ]
+    with served(state):
+        outputs = {}
+        for args in commands:
+            result = run(*dev, *args)
+            assert result.exit_code == 0, (args, result.output)
+            if "--json" in args:
+                outputs[args[:2]] = json.loads(result.output)
+        # what a person does by hand cannot come through a pty: load finds nothing pushed
+        one_line_error(run(*dev, "load", "--inserted"), 1, "no filament reached")
+        one_line_error(run(*dev, "unload", "--yes", "--feed", "D"), 2,
+                       "a RBX01-SM head has no feed D")
+    assert outputs[("purge", "--yes")]["written"]["head"] == {
+        "nozzle0_last_filament_temperature": 240}
+    assert outputs[("calibrate", "nozzle-opening")]["written"]["head"] == {
+        "nozzle0_b_offset": 0.7, "nozzle1_b_offset": -0.7}
+    assert outputs[("calibrate", "xy")]["measured"]["nozzle1_off_by_mm"] == [0.05, -0.05]
+    assert tip_mm(state) < 0  # eject-stuck pulled the filament out
+    data = head_data(state)
+    # nozzle-height: the paper's 0.1 mm, less half a perfect head's Z difference (0, to
+    # the microstep the probe reads)
+    assert float(data[0x50:0x58]) == pytest.approx(-0.1, abs=2e-4)
+
+
+QUESTIONS = {  # command -> its yes/no questions, in the order asked
+    "purge": 1, "level-gantry": 1, "unload": 1, "eject-stuck": 1, "head-change": 2,
+    "load": 1}
+
+
+@pytest.mark.parametrize("command,at", [(c, k) for c, n in QUESTIONS.items()
+                                        for k in range(1, n + 1)])
+def test_ctrl_c_at_each_question_of_each_command(loaded, monkeypatch, command, at):
+    """At a terminal, Ctrl-C at the question: status 130, no traceback, the heaters off
+    and the head's EEPROM as it was but for the hours the firmware counts."""
+    from robox.cli import maintenance as cli_maintenance
+
+    monkeypatch.setattr(cli_maintenance, "at_terminal", lambda: True)
+    asked = [0]
+
+    def confirm(*_args, **_kwargs):
+        asked[0] += 1
+        if asked[0] == at:
+            raise KeyboardInterrupt
+        return True
+
+    monkeypatch.setattr(click, "confirm", confirm)
+    if command == "load":
+        assert run("sim", "unload", "--state", str(loaded)).exit_code == 0
+    before = head_data(loaded)
+    result = run("--device", f"sim-once:{loaded}", command)
+    assert result.exit_code == 130, result.output
+    assert "Traceback" not in result.output and asked[0] == at
+    assert head_data(loaded)[:0xB8] == before[:0xB8]
+    s = status(loaded)
+    assert s["temperatures"]["nozzle0"]["mode"] == "0" and not s["busy"]
+    if at == 1:
+        assert s["position"] == {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}

@@ -49,6 +49,12 @@ def _run(ctx, make, answers: dict, dry_run: bool, as_json: bool, read_printer=No
     click.echo(f"{report.sequence}: {'dry run, nothing sent' if dry_run else 'done'}")
 
 
+def _head(printer) -> dict:
+    status = printer.status()
+    head = printer.read_eeprom_fields("head") if status.eeproms["head"] == "valid" else {}
+    return {"head": head}
+
+
 def _head_and_reels(printer) -> dict:
     status = printer.status()
     if status.job:
@@ -113,10 +119,10 @@ def unload_cmd(ctx, feed, answer_yes, dry_run, as_json) -> None:
     """Unload a feed's filament: the printer heats, moves right and pulls it back."""
     from robox.maintenance import Unload
 
-    def make(printer, answers, ask, say, dry_run):
-        return Unload(printer, answers, ask, say, dry_run, feed=feed)
+    def make(printer, answers, ask, say, dry_run, head):
+        return Unload(printer, answers, ask, say, dry_run, feed=feed, head=head)
 
-    _run(ctx, make, {"yes": answer_yes}, dry_run, as_json)
+    _run(ctx, make, {"yes": answer_yes}, dry_run, as_json, read_printer=_head)
 
 
 @click.command("head-change")
@@ -133,16 +139,11 @@ def head_change_cmd(ctx, answer_yes, answer_swapped, dry_run, as_json) -> None:
     filament and unlock the door; then, once the new head is in place, read its EEPROM."""
     from robox.maintenance import HeadChange
 
-    def read_head(printer) -> dict:
-        status = printer.status()
-        head = printer.read_eeprom_fields("head") if status.eeproms["head"] == "valid" else {}
-        return {"head": head}
-
     def make(printer, answers, ask, say, dry_run, head):
         return HeadChange(printer, answers, ask, say, dry_run, head=head)
 
     _run(ctx, make, {"yes": answer_yes, "swapped": answer_swapped}, dry_run, as_json,
-         read_printer=read_head)
+         read_printer=_head)
 
 
 @click.command("eject-stuck")
@@ -178,10 +179,10 @@ def load_cmd(ctx, feed, answer_inserted, dry_run, as_json) -> None:
     """Load a feed: push the filament in until the drive takes it; the printer does the rest."""
     from robox.maintenance import Load
 
-    def make(printer, answers, ask, say, dry_run):
-        return Load(printer, answers, ask, say, dry_run, feed=feed)
+    def make(printer, answers, ask, say, dry_run, head):
+        return Load(printer, answers, ask, say, dry_run, feed=feed, head=head)
 
-    _run(ctx, make, {"inserted": answer_inserted}, dry_run, as_json)
+    _run(ctx, make, {"inserted": answer_inserted}, dry_run, as_json, read_printer=_head)
 
 
 @click.group("calibrate")
