@@ -6,7 +6,10 @@ import re
 import shlex
 import subprocess
 import sys
+import time
 from pathlib import Path
+
+from robox.sim.serve import HOST_QUIET_S
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
@@ -63,8 +66,13 @@ def test_the_virtual_printer_section_runs_as_written(tmp_path):
     try:
         sent = robox_cli(["--device", "sim", "send-job", str(job), "--raw", "--json"], env)
         assert json.loads(sent.stdout)["printing"] is True
+        gone = time.monotonic()
         status = robox_cli(["--device", "sim", "status", "--json"], env)
-        assert json.loads(status.stdout)["job"] == json.loads(sent.stdout)["id"]
+        if json.loads(status.stdout)["job"] != json.loads(sent.stdout)["id"]:
+            # the served printer holds its clock for a host that has just left, and only
+            # once it has heard nothing for HOST_QUIET_S of wall time runs on (and
+            # finishes the job): a loaded machine can start the next command that late
+            assert time.monotonic() - gone > HOST_QUIET_S, status.stdout
         assert re.match(r"served on /dev/pts/\d+ by PID \d+",
                         robox_cli(["sim", "status"], env).stdout)
     finally:
