@@ -82,6 +82,19 @@ def report(output: str, data: object, as_json: bool, text: str) -> None:
         click.echo(text, err=is_stdout(output))
 
 
+def number_pair(ctx, param, value: str | None) -> list[float] | None:
+    """A click callback: 'A,B' as two numbers."""
+    if value is None:
+        return None
+    parts = value.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return [float(parts[0]), float(parts[1])]
+    except ValueError:
+        raise click.BadParameter(f"{value!r}: two numbers with a comma between") from None
+
+
 def at_terminal() -> bool:
     return sys.stdin.isatty()
 

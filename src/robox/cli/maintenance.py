@@ -8,7 +8,7 @@ from dataclasses import asdict
 
 import click
 
-from robox.cli.common import at_terminal, emit_json, json_option
+from robox.cli.common import at_terminal, emit_json, json_option, number_pair
 
 yes_answer = click.option("-y", "--yes", "answer_yes", is_flag=True, default=None,
                           help="Answer the question yes (needed away from a terminal).")
@@ -220,21 +220,9 @@ def nozzle_height_cmd(ctx, answer_yes, paper_z, dry_run, as_json) -> None:
     _calibrate(ctx, NozzleHeight, {"yes": answer_yes, "paper_z": paper_z}, dry_run, as_json)
 
 
-def _pair(ctx, param, value):
-    if value is None:
-        return None
-    parts = value.split(",")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        return [float(parts[0]), float(parts[1])]
-    except ValueError:
-        raise click.BadParameter(f"{value!r}: two numbers with a comma between") from None
-
-
 @calibrate.command("nozzle-opening")
 @yes_answer
-@click.option("--opens-at", callback=_pair, metavar="B0,B1",
+@click.option("--opens-at", callback=number_pair, metavar="B0,B1",
               help="Answer the opening questions: the B shown when plastic first came out "
                    "of nozzle 0 and of nozzle 1 (negative), away from a terminal.")
 @dry_run_option

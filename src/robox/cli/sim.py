@@ -8,25 +8,12 @@ from pathlib import Path
 
 import click
 
-from robox.cli.common import emit_json, json_option
+from robox.cli.common import emit_json, json_option, number_pair
 from robox.errors import UsageError
 from robox.sim.printer import default_state_dir
 
 STATE_OPTION = click.option("--state", "state_dir", type=click.Path(file_okay=False),
                             help="State directory (default: the per-user virtual printer).")
-
-
-def _pair(ctx, param, value):
-    """'A,B' as two floats."""
-    if value is None:
-        return None
-    parts = value.split(",")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        return [float(parts[0]), float(parts[1])]
-    except ValueError:
-        raise click.BadParameter(f"{value!r}: two numbers with a comma between") from None
 
 
 def flaw_options(f):
@@ -35,10 +22,10 @@ def flaw_options(f):
             click.option("--nozzle-z-difference", "z_difference", type=float, metavar="MM",
                          help="Nozzle 1's tip sits MM lower than nozzle 0's (negative: "
                               "higher); the Z probe finds it."),
-            click.option("--b-open", "b_open", callback=_pair, metavar="B0,B1",
+            click.option("--b-open", "b_open", callback=number_pair, metavar="B0,B1",
                          help="The B positions where nozzle 0's needle (positive) and "
                               "nozzle 1's (negative) just open; the valve follows them."),
-            click.option("--xy-offset", "xy_offset", callback=_pair, metavar="DX,DY",
+            click.option("--xy-offset", "xy_offset", callback=number_pair, metavar="DX,DY",
                          help="Nozzle 1 sits DX, DY mm from where the head's EEPROM puts "
                               "it, relative to nozzle 0."))):
         f = option(f)
