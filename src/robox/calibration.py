@@ -55,6 +55,8 @@ XY_PAIRS = 11
 XY_STEP = 0.05
 X_LETTERS = "ABCDEFGHIJK"
 PROBE_AT = (105.0, 75.0)
+PATTERN_LINE_MM = 12.0
+PATTERN_LAYER_MM = 0.3
 
 
 def number(value: float) -> str:
@@ -336,27 +338,44 @@ class XYAlignment(Calibration):
     name = "calibrate xy"
     questions = ("yes", "x_pair", "y_pair")
 
-    def pattern(self, valves) -> list[str]:
+    def pattern(self, valves) -> list[list[str]]:
         """Eleven pairs of lines across X, eleven along Y; nozzle 1's line of pair k
-        shifted by (k - 5) x XY_STEP. Each line opens the valve, lays 12 mm and shuts."""
-        lines: list[str] = []
+        shifted by (k - 5) x XY_STEP. A group of lines per printed line, each run as one
+        command so that the head does not stop on it: the valve opened at the line's
+        start with the plastic that fills the void the needle leaves, the line laid at
+        the nozzle's width, and the valve closed on the move over its last part, the
+        needle pushing out what that part needs (as jobs are translated)."""
+        groups: list[list[str]] = []
         middle = XY_PAIRS // 2
         for n in (0, 1):
             feed = valves.feeds[n]
-            lines += [f"T{n}", "G0 B0", f"G36 {feed}100 F800"]
+            flow = valves.diameters_mm[n] * PATTERN_LAYER_MM  # mm3 per mm of line
+            ejection = valves.ejection_mm3[n]
+            closing = min(PATTERN_LINE_MM / 2, ejection / flow)
+            laid = PATTERN_LINE_MM - closing
+            # pressurised against the shut needle, then a prime line in front of the
+            # pattern takes what the head held (its first opening lets it all out)
+            prime = 40.0 + 25.0 * n
+            groups.append(["G0 Z1", f"T{n}", "G0 B0", f"G0 X{number(prime)} Y30",
+                           f"G0 Z{PATTERN_LAYER_MM:g}", f"G36 {feed}100 F800",
+                           f"G1 B1 {feed}{number(ejection)} F300",
+                           f"G1 X{number(prime + 15)} {feed}{number(flow * 15)} F600",
+                           f"G1 X{number(prime + 20)} B0 F600", "G0 Z1"])
             for k in range(XY_PAIRS):
                 shift = (k - middle) * XY_STEP if n == 1 else 0.0
-                # across X: lines along Y at X 40 + 5k; nozzle 1's below nozzle 0's
-                x = 40.0 + 5.0 * k + shift
-                y0 = 40.0 if n == 0 else 53.0
-                lines += [f"G0 X{number(x)} Y{number(y0)} Z0.3", "G0 B1",
-                          f"G1 Y{number(y0 + 12)} {feed}0.9 F600", "G0 B0", "G0 Z1"]
-                # along Y: lines along X at Y 80 + 5k; nozzle 1's right of nozzle 0's
-                y = 80.0 + 5.0 * k + shift
-                x0 = 40.0 if n == 0 else 53.0
-                lines += [f"G0 X{number(x0)} Y{number(y)} Z0.3", "G0 B1",
-                          f"G1 X{number(x0 + 12)} {feed}0.9 F600", "G0 B0", "G0 Z1"]
-        return lines
+                # across X: lines along Y at X 40 + 5k (nozzle 1's beyond nozzle 0's in
+                # Y); along Y: lines along X at Y 80 + 5k (nozzle 1's beyond in X)
+                for along, at, start in (("Y", 40.0 + 5.0 * k + shift, 40.0),
+                                         ("X", 80.0 + 5.0 * k + shift, 40.0)):
+                    start += 0.0 if n == 0 else PATTERN_LINE_MM + 1.0
+                    across = "X" if along == "Y" else "Y"
+                    groups.append([
+                        f"G0 {across}{number(at)} {along}{number(start)}",
+                        f"G0 Z{PATTERN_LAYER_MM:g}",
+                        f"G1 B1 {feed}{number(ejection)} F300",
+                        f"G1 {along}{number(start + laid)} {feed}{number(flow * laid)} F600",
+                        f"G1 {along}{number(start + PATTERN_LINE_MM)} B0 F600", "G0 Z1"])
+        return groups
 
     def steps(self) -> None:
         head_type = self.head_type()
@@ -375,8 +394,8 @@ class XYAlignment(Calibration):
         if bed > 0 and math.isfinite(bed):
             self.send(f"heat the bed to {bed:g} °C", [f"M140 S{bed:g}"])
         self.heat(heaters)
-        self.send("print the alignment pattern (X pairs A to K, Y pairs 1 to 11)",
-                  self.pattern(valves))
+        self.send_groups("print the alignment pattern (X pairs A to K, Y pairs 1 to 11)",
+                         self.pattern(valves))
         self.send("heaters off, the head up and the bed to the front",
                   ["M104 S0 T0", "M140 S0", "G0 Z25", "G0 X105 Y150"])
         self.heating = False

@@ -163,6 +163,20 @@ class Sequence:
             self.printer.gcode(line + "\r")
             self.wait_idle(known, MOVE_TIMEOUT_S)
 
+    def send_groups(self, text: str, groups: list[list[str]]) -> None:
+        """Each group of G-code lines as one command (the execute buffer runs them in
+        turn, so the head does not stop between them), then wait until the printer has
+        run them."""
+        self.step(text)
+        if self.dry_run:
+            for group in groups:
+                self.say("    " + " | ".join(group))
+            return
+        known = self.printer.errors()
+        for group in groups:
+            self.printer.gcode("".join(line + "\r" for line in group))
+            self.wait_idle(known, MOVE_TIMEOUT_S)
+
     def watch(self, known_errors: int, until: Callable[[Status], bool], timeout_s: float,
               failure: str) -> None:
         """Look at the status every POLL_S until `until(status)` holds; a fresh error, or

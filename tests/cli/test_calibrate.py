@@ -209,10 +209,18 @@ def test_xy_prints_the_pattern_and_writes_what_the_person_read(tmp_path):
     assert (after["y1"] - after["y0"]) - (before["y1"] - before["y0"]) == \
         pytest.approx(-dy, abs=1e-4)
     assert after["x0"] == pytest.approx(before["x0"] + dx / 2, abs=1e-4)
-    # the pattern was printed: 44 lines of 0.9 mm3 and what pressurising took
+    # the pattern was printed: each nozzle's prime line and 22 lines, each line the void
+    # its opening leaves (the head's ejection volume) and the nozzle's width x 0.3 mm
+    # over the part laid before the needle closes on the move; and what pressurising
+    # each nozzle's feed took (at most 1 mm3)
+    expected = 0.0
+    for width, ejection in ((0.3, 0.3), (0.8, 0.6)):
+        flow = width * 0.3
+        expected += ejection + flow * 15  # the prime line
+        expected += 22 * (ejection + flow * (12 - min(6, ejection / flow)))
     used_mm3 = (length - json.loads((state / "filament.json").read_text())["E"]
                 ["length_mm"]) * 3.141592653589793 * 1.75 ** 2 / 4
-    assert 44 * 0.9 <= used_mm3 <= 44 * 0.9 + 4
+    assert expected <= used_mm3 <= expected + 2.5
 
 
 # ------------------------------------------------------------------ the common rules
