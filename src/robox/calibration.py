@@ -40,7 +40,7 @@ import math
 from robox.errors import RoboxError, UsageError
 from robox.formats import eeprom as fmt
 from robox.formats.heads import head_kind, head_valves, max_temperature
-from robox.maintenance import LEVEL_GANTRY, MOVE_TIMEOUT_S, SENSOR_AT, Sequence
+from robox.maintenance import LEVEL_GANTRY, MOVE_TIMEOUT_S, SENSOR_AT, Sequence, write_head
 
 #: probes of AutoMaker's Z difference measurement (alternately nozzle 1 and nozzle 0)
 Z_PROBES = 11
@@ -122,19 +122,9 @@ class Calibration(Sequence):
             return
         assert self.saved is not None
         hours_field = fmt.field("head", "head_hours")
-        data = bytearray(self.printer.read_eeprom("head"))  # its hours as they now are
-        hours = bytes(data[hours_field.offset:hours_field.offset + hours_field.size])
-        data[:] = self.saved
-        data[hours_field.offset:hours_field.offset + hours_field.size] = hours
-        for name, value in assignments.items():
-            fmt.set_field(data, "head", name, value)
-        self.printer.write_eeprom("head", 0, bytes(data))
-        back = bytearray(self.printer.read_eeprom("head"))
-        # (a hot head's hours may be counted on between the write and the read)
-        back[hours_field.offset:hours_field.offset + hours_field.size] = hours
-        if bytes(back) != fmt.mask7(bytes(data)):
-            raise RoboxError(f"{self.name}: the head EEPROM reads back other than was "
-                             "written")
+        now = self.printer.read_eeprom("head")  # the hours as the firmware has counted them
+        write_head(self.printer, self.saved, assignments, self.name,
+                   hours=now[hours_field.offset:hours_field.offset + hours_field.size])
 
     def report_written(self, *names: str) -> None:
         """The fields written, as the head's EEPROM now reads them."""

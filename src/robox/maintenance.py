@@ -245,6 +245,28 @@ class Sequence:
                    f"the nozzle did not cool to {target:g} °C")
 
 
+def write_head(printer, data: bytes, assignments: dict, who: str,
+               hours: bytes | None = None) -> None:
+    """The head's data (`data`, with `assignments` and, where given, `hours` in place of
+    its hours field) written whole in one command and read back. The hours are left out
+    of the comparison: the firmware counts a hot head's hours on, and writes them, in
+    between."""
+    from robox.formats import eeprom as fmt
+
+    hours_field = fmt.field("head", "head_hours")
+    where = slice(hours_field.offset, hours_field.offset + hours_field.size)
+    out = bytearray(data)
+    if hours is not None:
+        out[where] = hours
+    for name, value in assignments.items():
+        fmt.set_field(out, "head", name, value)
+    printer.write_eeprom("head", 0, bytes(out))
+    back = bytearray(printer.read_eeprom("head"))
+    back[where] = fmt.mask7(bytes(out[where]))
+    if bytes(back) != fmt.mask7(bytes(out)):
+        raise RoboxError(f"{who}: the head EEPROM reads back other than was written")
+
+
 def purge_temperature(last_c: float, reel_c: float, head_max_c: float) -> float:
     """AutoMaker's purge temperature: halfway from the material the head last melted to
     the reel's, at least 180 °C, at most the head's maximum (whole degrees)."""
@@ -339,15 +361,7 @@ class Purge(Sequence):
             f"nozzle {h} last melted {p['reel_c']:g} °C" for h, p in heaters.items()))
         if self.dry_run:
             return
-        from robox.formats import eeprom as fmt
-
-        before = self.printer.read_eeprom("head")
-        data = bytearray(before)
-        for name, value in assignments.items():
-            fmt.set_field(data, "head", name, value)
-        self.printer.write_eeprom("head", 0, bytes(data))
-        if self.printer.read_eeprom("head") != fmt.mask7(bytes(data)):
-            raise RoboxError("purge: the head EEPROM reads back other than was written")
+        write_head(self.printer, self.printer.read_eeprom("head"), assignments, self.name)
         self.report.written = {"head": assignments}
 
 

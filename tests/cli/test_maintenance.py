@@ -431,3 +431,36 @@ def test_ctrl_c_at_each_question_of_each_command(loaded, monkeypatch, command, a
     assert s["temperatures"]["nozzle0"]["mode"] == "0" and not s["busy"]
     if at == 1:
         assert s["position"] == {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}
+
+
+class HoursCounting:
+    """A head whose firmware counts its hours on between a write and the next read (a
+    hot head on a fast printer), and, with `corrupt`, a chip that loses a byte."""
+
+    def __init__(self, data: bytes, corrupt: bool = False):
+        self.data = bytearray(data)
+        self.corrupt = corrupt
+
+    def write_eeprom(self, which, address, data):
+        assert (which, address, len(data)) == ("head", 0, 192)
+        self.data[:] = data
+        self.data[0xB8:0xC0] = b"12.50000"  # the firmware's own write of the hours
+        if self.corrupt:
+            self.data[0x50] ^= 0x01
+
+    def read_eeprom(self, which):
+        return bytes(self.data)
+
+
+def test_a_head_write_is_checked_but_for_the_hours_the_firmware_counts_meanwhile():
+    from robox.formats import eeprom as fmt
+
+    data = bytearray(192)
+    fmt.set_field(data, "head", "type_code", "RBX01-SM")
+    fmt.set_field(data, "head", "head_hours", 12.25)
+    head = HoursCounting(bytes(data))
+    maintenance.write_head(head, bytes(data), {"nozzle0_z_offset": -0.1}, "test")
+    assert head.data[0x50:0x58] == b"-0.10000" and head.data[0xB8:0xC0] == b"12.50000"
+    with pytest.raises(maintenance.RoboxError, match="reads back other than was written"):
+        maintenance.write_head(HoursCounting(bytes(data), corrupt=True), bytes(data),
+                               {"nozzle0_z_offset": -0.1}, "test")
