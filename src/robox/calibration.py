@@ -40,7 +40,7 @@ import math
 from robox.errors import RoboxError, UsageError
 from robox.formats import eeprom as fmt
 from robox.formats.heads import head_kind, head_valves, max_temperature
-from robox.maintenance import LEVEL_GANTRY, MOVE_TIMEOUT_S, SENSOR_AT, Sequence, write_head
+from robox.maintenance import LEVEL_GANTRY, SENSOR_AT, Sequence, write_head, z_delta
 
 #: probes of AutoMaker's Z difference measurement (alternately nozzle 1 and nozzle 0)
 Z_PROBES = 11
@@ -149,12 +149,6 @@ class Calibration(Sequence):
                   ["M104 S0 T0", "M140 S0", "G90", "G0 Z25", "G0 X105 Y150"])
         self.heating = False
 
-    def m113(self) -> float:
-        reply = self.printer.gcode("M113\r")
-        for part in reply.replace("\r", "\n").split("\n"):
-            if part.startswith("Zdelta:"):
-                return float(part.split(":", 1)[1])
-        raise RoboxError(f"{self.name}: the printer's M113 reply has no Z delta: {reply!r}")
 
 
 class NozzleHeight(Calibration):
@@ -186,7 +180,7 @@ class NozzleHeight(Calibration):
             for k in range(Z_PROBES):
                 nozzle = 1 if k % 2 == 0 else 0
                 self.run_lines([f"T{nozzle}", "G28 Z?"])
-                deltas[nozzle].append(self.m113())
+                deltas[nozzle].append(z_delta(self.printer, self.name))
         else:
             self.say("    T1, G28 Z?, M113, T0, G28 Z?, M113, ...")
         pairs = (Z_PROBES + 1) // 2
@@ -206,12 +200,6 @@ class NozzleHeight(Calibration):
         self.report_written("nozzle0_z_offset", "nozzle1_z_offset")
         self.saved = None  # (what is written stays)
         self.finish()
-
-    def run_lines(self, lines: list[str]) -> None:
-        known = self.printer.errors()
-        for line in lines:
-            self.printer.gcode(line + "\r")
-            self.wait_idle(known, MOVE_TIMEOUT_S)
 
     def paper_height(self) -> float:
         """Nozzle 0 raised from the bed in PAPER_STEP_MM steps until the person says a

@@ -158,6 +158,10 @@ class Sequence:
             for line in lines:
                 self.say(f"    {line}")
             return
+        self.run_lines(lines)
+
+    def run_lines(self, lines: tuple[str, ...] | list[str]) -> None:
+        """G-code lines through the execute buffer, each waited out (no step said)."""
         known = self.printer.errors()
         for line in lines:
             self.printer.gcode(line + "\r")
@@ -265,6 +269,15 @@ def write_head(printer, data: bytes, assignments: dict, who: str,
     back[where] = fmt.mask7(bytes(out[where]))
     if bytes(back) != fmt.mask7(bytes(out)):
         raise RoboxError(f"{who}: the head EEPROM reads back other than was written")
+
+
+def z_delta(printer, who: str) -> float:
+    """M113: how far the last Z home found the bed from where the one before put it."""
+    reply = printer.gcode("M113\r")
+    for part in reply.replace("\r", "\n").split("\n"):
+        if part.startswith("Zdelta:"):
+            return float(part.split(":", 1)[1])
+    raise RoboxError(f"{who}: the printer's M113 reply has no Z delta: {reply!r}")
 
 
 def purge_temperature(last_c: float, reel_c: float, head_max_c: float) -> float:
@@ -376,12 +389,7 @@ class LevelGantry(Sequence):
         self.send("home, probe Z at each leadscrew, level the gantry (G38)", LEVEL_GANTRY)
         if self.dry_run:
             return
-        reply = self.printer.gcode("M113\r")
-        value = None
-        for part in reply.replace("\r", "\n").split("\n"):
-            if part.startswith("Zdelta:"):
-                value = float(part.split(":", 1)[1])
-        self.report.measured = {"z_delta_mm": value}
+        self.report.measured = {"z_delta_mm": z_delta(self.printer, self.name)}
 
 
 def check_feed(name: str, feed: str, head: dict) -> None:
