@@ -40,7 +40,7 @@ import math
 from robox.errors import RoboxError, UsageError
 from robox.formats import eeprom as fmt
 from robox.formats.heads import head_kind, head_valves, max_temperature
-from robox.maintenance import LEVEL_GANTRY, SENSOR_AT, Sequence, write_head, z_delta
+from robox.maintenance import LEVEL_GANTRY, SENSOR_AT, Sequence, head_type_of, write_head, z_delta
 
 #: probes of AutoMaker's Z difference measurement (alternately nozzle 1 and nozzle 0)
 Z_PROBES = 11
@@ -77,11 +77,7 @@ class Calibration(Sequence):
         self.saved: bytes | None = None
 
     def head_type(self) -> str:
-        head_type = str(self.head.get("type_code", "") or "")
-        if not head_type:
-            raise RoboxError(f"{self.name}: the head's EEPROM gives no head type (is the "
-                             "head in place? a formatted head needs its data written back)")
-        return head_type
+        return head_type_of(self.head, self.name)
 
     def nozzles(self) -> list[int]:
         if head_kind(self.head_type()) == "plain":

@@ -271,6 +271,25 @@ def write_head(printer, data: bytes, assignments: dict, who: str,
         raise RoboxError(f"{who}: the head EEPROM reads back other than was written")
 
 
+def head_type_of(head: dict, who: str) -> str:
+    """The type code of the head's EEPROM fields (RoboxError where it gives none)."""
+    head_type = str(head.get("type_code", "") or "")
+    if not head_type:
+        raise RoboxError(f"{who}: the head's EEPROM gives no head type (is the head in "
+                         "place? a formatted head needs its data written back)")
+    return head_type
+
+
+def chosen_nozzles(head_type: str, nozzle: int | None, who: str) -> list[int]:
+    """The head's nozzles, or the one `nozzle` names (UsageError where it has none)."""
+    nozzles = [0] if head_kind(head_type) == "plain" else [0, 1]
+    if nozzle is None:
+        return nozzles
+    if nozzle not in nozzles:
+        raise UsageError(f"{who}: a {head_type} head has no nozzle {nozzle}")
+    return [nozzle]
+
+
 def z_delta(printer, who: str) -> float:
     """M113: how far the last Z home found the bed from where the one before put it."""
     reply = printer.gcode("M113\r")
@@ -306,17 +325,10 @@ class Purge(Sequence):
         temperature, the material the head last melted and the purge temperature. A
         single-material head has one heater for both nozzles and both are purged (as
         AutoMaker did); a dual-material head a heater per nozzle."""
-        head_type = str(self.head.get("type_code", "") or "")
-        if not head_type:
-            raise RoboxError("purge: the head's EEPROM gives no head type (is the head in "
-                             "place? a formatted head needs its data written back)")
+        head_type = head_type_of(self.head, self.name)
         kind = head_kind(head_type)
         valves = head_valves(head_type)
-        nozzles = [0] if kind == "plain" else [0, 1]
-        if self.nozzle is not None:
-            if self.nozzle not in nozzles:
-                raise UsageError(f"purge: a {head_type} head has no nozzle {self.nozzle}")
-            nozzles = [self.nozzle]
+        nozzles = chosen_nozzles(head_type, self.nozzle, self.name)
         limit = max_temperature(head_type)
         purged: dict[int, dict] = {}
         heaters: dict[int, dict] = {}
@@ -497,16 +509,11 @@ class EjectStuck(Sequence):
 
     def plan(self) -> list[dict]:
         """Each heater freed: its nozzles, feed, reel temperature and neck temperature."""
-        head_type = str(self.head.get("type_code", "") or "")
-        if not head_type:
-            raise RoboxError("eject-stuck: the head's EEPROM gives no head type (is the "
-                             "head in place?)")
+        head_type = head_type_of(self.head, self.name)
         kind = head_kind(head_type)
         valves = head_valves(head_type)
-        nozzles = [0] if kind == "plain" else [0, 1]
+        nozzles = chosen_nozzles(head_type, self.nozzle, self.name)
         if self.nozzle is not None:
-            if self.nozzle not in nozzles:
-                raise UsageError(f"eject-stuck: a {head_type} head has no nozzle {self.nozzle}")
             if kind != "dual":  # one heater and one feed: both nozzles are freed together
                 raise UsageError(f"eject-stuck: a {head_type} head's nozzles share one feed; "
                                  "they are freed together (no --nozzle)")
