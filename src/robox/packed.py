@@ -41,4 +41,9 @@ else:
         v.append(item)
         return v
 
-__all__ = ["COMPILED", "append", "vec"]
+try:  # a native 64-bit integer where the compiled core is built; otherwise int
+    from mypy_extensions import i64
+except ImportError:  # pragma: no cover - mypy_extensions comes with the build's tools
+    i64 = int  # type: ignore[misc,assignment]
+
+__all__ = ["COMPILED", "append", "i64", "vec"]

@@ -117,6 +117,8 @@ def test_runs_of_interrupts_and_skipped_passes_change_nothing(monkeypatch):
     monkeypatch.setattr(motion, "_run_length", lambda *a: 1)
     monkeypatch.setattr(motion, "_singles", lambda blk, limit, cap: motion._interrupt(
         blk, motion.machine))
+    monkeypatch.setattr(motion, "_watched", lambda blk, limit, m, cap: motion._interrupt(
+        blk, m))
     slow = scripted_session(slow_wire)
     assert len(fast) == 85 and fast == slow
 
@@ -144,8 +146,10 @@ def filament_session(wire, moves: list[str], slip_from: int = -1) -> list[bytes]
             out.append(wire.raw(b"\xb0"))
             # the drives' accumulators count the steps since their wheel's last edge
             # (the slip detection's measure): a run that passed an edge unseen shows here
+            # and a move that watches a switch counts its interrupts down to abandoning
             out.append(repr((list(motion.acc), list(motion.last_index),
-                             list(motion.index_moved))).encode())
+                             list(motion.index_moved), motion.switch_abandon_counter,
+                             motion.speed_x4k)).encode())
     settle(wire)
     out.append(repr((m.x, m.y, m.b, m.filament[E], m.filament[D], m.wheel_passed,
                      m.extruded, motion.interrupts, motion.last_tick, motion.slip_error,
@@ -159,6 +163,8 @@ def one_interrupt_at_a_time(monkeypatch, wire) -> None:
     monkeypatch.setattr(motion, "_run_length", lambda *a: 1)
     monkeypatch.setattr(motion, "_singles", lambda blk, limit, cap: motion._interrupt(
         blk, motion.machine))
+    monkeypatch.setattr(motion, "_watched", lambda blk, limit, m, cap: motion._interrupt(
+        blk, m))
 
 
 _move = st.builds(
@@ -174,7 +180,8 @@ _move = st.builds(
                     reason="a compiled class's methods cannot be replaced; the same source "
                            "is checked by the pure-Python run")
 @settings(max_examples=25, deadline=None)
-@given(st.lists(_move, min_size=1, max_size=6), st.integers(-1, 7))
+@given(st.lists(st.one_of(_move, _move, st.sampled_from(["T0", "T1", "G28 X", "G28 Y"])),
+                min_size=1, max_size=6), st.integers(-1, 7))
 def test_filament_runs_are_batched_as_one_interrupt_at_a_time_would_run_them(moves,
                                                                               slip_from):
     """With filament in the drives, runs of interrupts (cruise batches and the ramp
@@ -182,7 +189,8 @@ def test_filament_runs_are_batched_as_one_interrupt_at_a_time_would_run_them(mov
     passes skipped while only motion is awaited (where no slip count can reach its
     threshold) give what one interrupt per call and one pass per millisecond give:
     every reply, wheel level, slip count, position and tick; also when a wheel stops
-    turning part-way and the slip is found."""
+    turning part-way and the slip is found, and through the ramps of moves that watch
+    a switch (homing, the valve run to its switch on a nozzle change)."""
     fast = filament_session(fresh_wire(), moves, slip_from)
     slow_wire = fresh_wire()
     with pytest.MonkeyPatch.context() as monkeypatch:
@@ -628,7 +636,7 @@ def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end
     expected = reference_ramp(length, speed, end_speed, a, s, motion.timer_period, maxp, 0,
                               limit, cap)
     before = motion.interrupts
-    motion._singles(blk, limit, cap)
+    motion._singles(blk, limit, motion_module.NO_CAP if cap is None else cap)
     count, left, s, period, last, tick = expected
     assert (motion.interrupts - before, blk.length, motion.speed_x4k, motion.timer_period,
             motion.last_tick, motion.next_tick) == (count, left, s, period, last, tick)

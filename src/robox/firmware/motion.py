@@ -54,6 +54,8 @@ if TYPE_CHECKING:
 
 BUFFER_SIZE: Final = 16
 MASK: Final = BUFFER_SIZE - 1
+#: A run of interrupts with no cap on how many count the length down.
+NO_CAP: Final = 1 << 62
 MIN_SPEED: Final = 2
 MAX_SPEED: Final = 1200
 BOARD_MCK: Final = 96_000_000
@@ -492,7 +494,7 @@ class Motion:
         # runs between them to change it)
         a: i64 = self.parameters.acceleration
         while self.next_tick <= limit:
-            self._advance(limit, None, a)
+            self._advance(limit, NO_CAP, a)
 
     def can_run_ahead(self) -> bool:
         """Whether the loop may skip passes while motion runs: nothing the foreground
@@ -534,20 +536,21 @@ class Motion:
         a: i64 = self.parameters.acceleration  # (as catch_up() reads it)
         ready = kind == "ready"  # (compared once, not at every run of interrupts)
         while True:
-            cap = self._counts_until_ready(a) if ready else (0 if self.empty() else None)
-            if cap is not None and cap == 0:  # (compiled: native, not a generic ==)
+            cap: i64 = self._counts_until_ready(a) if ready else \
+                (0 if self.empty() else NO_CAP)
+            if cap == 0:
                 return last
             if self.next_tick > limit or not self.machine.z_top_pin():
                 return None
             self._advance(limit, cap, a)
             last = self.last_tick / TICKS_PER_S
 
-    def _counts_until_ready(self, a: i64) -> int | None:
+    def _counts_until_ready(self, a: i64) -> i64:
         """How many more counted interrupts until ready_for_more() holds (0: it does);
-        None when it needs a block to end first (`a`: the acceleration)."""
+        NO_CAP when it needs a block to end first (`a`: the acceleration)."""
         n = self.queued()
         if n >= BUFFER_SIZE - 1:
-            return None
+            return NO_CAP
         if n == 0:
             return 0
         length: i64 = self.queued_length
@@ -555,9 +558,9 @@ class Motion:
         v = (((speed // a + MARGIN_UNITS) * speed) & U32) >> 5
         return 0 if length < v else length - v + 1
 
-    def _advance(self, limit: int, cap: int | None, a: i64) -> None:
+    def _advance(self, limit: int, cap: i64, a: i64) -> None:
         """One interrupt, or a run of them, not past `limit` nor past `cap` counted
-        interrupts (None: no cap), with the acceleration `a`."""
+        interrupts (NO_CAP: no cap), with the acceleration `a`."""
         if not self.active:
             if self.buffer_in != self.buffer_out:
                 if self.block[self.buffer_out].length:
@@ -586,31 +589,124 @@ class Motion:
             if wheels < 2:
                 self._interrupt(blk, m)
                 return
-            if wheels < (1 << 59):  # a wheel turns: checked once, it cannot change
-                self._check_index_wheels()
-                if cap is None or wheels < cap:
-                    cap = wheels
+            # the run's first interrupt looks at the wheels (one may have changed at the
+            # last interrupt before, another block's); none changes again before its end
+            self._check_index_wheels()
+            if wheels < cap:
+                cap = wheels
             self._singles(blk, limit, cap)
         else:
+            self._watched(blk, limit, m, cap)
+
+    def _watched(self, blk: Block, limit: int, m: Machine, cap: i64) -> None:
+        """Interrupts of a block that watches a switch while its speed ramps (a homing, a
+        valve run to its switch): a run of them as `_singles` takes them, or with the
+        length held while the switch has not tripped, as far as the switch and the
+        index wheels cannot change and the abandon count lasts; else one."""
+        counter: i64 = self.switch_abandon_counter
+        most: i64 = cap if cap < counter else counter
+        if self.fw.job.abort_flag or most < 2:  # (an abort counts every interrupt)
             self._interrupt(blk, m)
+            return
+        biggest: i64 = 0
+        for i in blk.movers:
+            inc: i64 = blk.inc[i]
+            if inc < 0:
+                inc = -inc
+            if inc > biggest:
+                biggest = inc
+        # the switch reads as it does now after each of the run's interrupts: every
+        # motor a microstep short of where it could change
+        quiet: i64 = m.quiet_steps(self.switch_select)
+        if quiet < (1 << 59) and biggest > 0:
+            k: i64 = ((quiet - 1) * 65536 - 65535) // biggest
+            if k < most:
+                most = k
+        wheels: i64 = self._wheel_cap(blk, m)
+        if wheels < most:
+            most = wheels
+        if most < 2:
+            self._interrupt(blk, m)
+            return
+        counting = (self.slip_select and self.filament_slip) or \
+            m.switch_pin(self.switch_select) != self.switch_invert
+        before = self.interrupts
+        self._check_index_wheels()  # (the run's first interrupt's look)
+        if counting:
+            self._singles(blk, limit, most)
+        else:
+            self._held_ramp(blk, limit, most)
+        self.switch_abandon_counter = counter - (self.interrupts - before)
+
+    def _held_ramp(self, blk: Block, limit: int, most: i64) -> None:
+        """Up to `most` interrupts that do not count the block's length down (its switch
+        has not tripped): the interrupt's arithmetic with the square root's speed fixed
+        by the held length, in a tight loop; the steps made at the end, all at once.
+        Stops once the speed holds (a run may follow), at `limit` or after `most`."""
+        a: i64 = self.parameters.acceleration
+        c: i64 = (blk.end_speed * blk.end_speed) >> 4
+        capped: i64 = blk.length - 1
+        if capped > 0x00800000:
+            capped = 0x00800000
+        v: i64 = isqrt32(((capped << 1) * a + c) & U32) << 14
+        top: i64 = blk.speed << 12
+        if v < top:
+            top = v
+        maxp: i64 = self.max_period_for_ramping
+        floor_speed: i64 = MIN_SPEED << 12
+        s: i64 = self.speed_x4k
+        period: i64 = self.timer_period
+        tick: i64 = self.next_tick
+        last: i64 = tick
+        end: i64 = limit
+        count: i64 = 0
+        while True:
+            n: i64 = s + (period if period < maxp else maxp) * a
+            if top < n:
+                n = top
+            if n < floor_speed:
+                n = floor_speed
+            settled = n == s
+            s = n
+            period = ((0x10000 << 12) // s) & 0xFFFF
+            last = tick
+            tick += period
+            count += 1
+            if settled or count >= most or tick > end:
+                break
+        self._step_movers(blk, count)
+        self.speed_x4k = s
+        self.timer_period = period
+        self.last_tick = last
+        self.next_tick = tick
+        self.interrupts += count
 
     def _wheel_cap(self, blk: Block, m: Machine) -> int:
-        """How many interrupts of this block can be made before an index wheel the
-        block turns could change level: each drive's own steps against its wheel's
-        margin (at most one carry per 65,536 of its increment); NEVER if none turns."""
+        """How many interrupts of this block can be made with the index wheels read once,
+        before the first: each turning drive's steps may reach its wheel's next edge that
+        way only at the last of them (the interrupt after it sees the new level, as one
+        interrupt at a time would). Worked out from the drive's accumulator: its
+        fraction and increment give the interrupt whose carry is that step. NEVER if no
+        wheel turns."""
         most: i64 = 1 << 60
         inc = blk.inc
+        acc = self.acc
         for axis in blk.movers:
             if E <= axis <= D:
-                margin: i64 = m.wheel_steps(axis)
+                step: i64 = inc[axis]
+                if step == 0:
+                    continue
+                margin: i64 = m.wheel_steps(axis, step > 0)
                 if margin < (1 << 59):
-                    step: i64 = inc[axis]
-                    if step < 0:
-                        step = -step
+                    fraction: i64 = acc[axis] & 0xFFFF
+                    # the steps after j interrupts: (fraction + j * step) >> 16, rounded
+                    # down; the level holds while fewer than `margin` are made
                     if step > 0:
-                        k: i64 = ((margin - 1) * 65536 - 65535) // step
-                        if k < most:
-                            most = k
+                        k: i64 = (margin * 65536 - 1 - fraction) // step + 1
+                    else:
+                        k = (fraction + (margin - 1) * 65536) // -step + 1
+                    if k < most:
+                        most = k
         return most
 
     def _check_index_wheels(self) -> None:
@@ -643,10 +739,22 @@ class Motion:
             if (v ^ w) & 0xFFFF0000:
                 m.step(i, 1 if inc[i] > 0 else -1)
         a: i64 = self.parameters.acceleration
-        v = isqrt32(((min(0x00800000, blk.length - 1) << 1) * a
-                     + ((blk.end_speed * blk.end_speed) >> 4)) & U32)
-        s = self.speed_x4k + min(self.timer_period, self.max_period_for_ramping) * a
-        s = min(v << 14, s, blk.speed << 12)
+        # (two-way ifs, not min() of three: compiled, native integers, where a min() of
+        # three calls the builtin on boxed ones)
+        capped: i64 = blk.length - 1
+        if capped > 0x00800000:
+            capped = 0x00800000
+        end_speed: i64 = blk.end_speed
+        v = isqrt32(((capped << 1) * a + ((end_speed * end_speed) >> 4)) & U32)
+        period: i64 = self.timer_period
+        if period > self.max_period_for_ramping:
+            period = self.max_period_for_ramping
+        s: i64 = self.speed_x4k + period * a
+        if v << 14 < s:
+            s = v << 14
+        top: i64 = blk.speed << 12
+        if top < s:
+            s = top
         self.speed_x4k = max(MIN_SPEED << 12, s)
         if self._counts():
             blk.length -= 1
@@ -659,10 +767,11 @@ class Motion:
         self.next_tick += self.timer_period
         self.interrupts += 1
 
-    def _singles(self, blk: Block, limit: int, cap: int | None) -> None:
+    def _singles(self, blk: Block, limit: int, cap: i64) -> None:
         """Interrupts one at a time while the speed ramps, the same arithmetic as
-        `_interrupt` in a tight loop, for a block that watches no switch, and no further
-        than its index wheels can turn without changing level (`cap`). Nothing the
+        `_interrupt` in a tight loop, for a block that watches no switch (or one that
+        cannot change meanwhile, and has tripped: see `_watched`), and no further than
+        its index wheels can turn without changing level (`cap`). Nothing the
         interrupts read changes on the way, so each axis's steps are made at the end, all
         at once, from its accumulator (as `_batch` does).
         Stops once the speed holds at the block's cruise speed or the floor (a run may
@@ -679,7 +788,7 @@ class Motion:
         last: i64 = tick
         length: i64 = blk.length
         count: i64 = 0
-        most: i64 = length if cap is None else min(cap, length)
+        most: i64 = cap if cap < length else length
         end: i64 = limit
         n: i64
         v: i64
@@ -794,7 +903,7 @@ class Motion:
             acc[i] = (before + moved) & U32
             m.step(i, ((before & 0xFFFF) + moved) >> 16)
 
-    def _run_length(self, blk: Block, limit: int, m: Machine, cap: int | None,
+    def _run_length(self, blk: Block, limit: int, m: Machine, cap: i64,
                     a: i64) -> int:
         """How many interrupts from now can be done at once (1: one at a time): the speed
         must stay exactly where it is for every one of them, no input the interrupt
@@ -820,8 +929,8 @@ class Motion:
                 need = -(-s // 16384)  # v must stay at least this
                 rem_min = max(0, -(-(need * need - c) // (2 * a)))
                 k = min(length - 1, length - rem_min)
-            if cap is not None:
-                k = min(k, cap)
+            if cap < k:
+                k = cap
         else:
             k = 1 << 40  # the length is not counted down: the speed cannot change
         if k < 2:

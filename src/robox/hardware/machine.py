@@ -36,7 +36,7 @@ opens when the carriage goes beyond Y's travel.
 
 The motion object moves motors with `step(axis, n)`; `quiet_steps(select)`
 bounds how far any motor may move before a watched switch could change, and
-`wheel_steps(axis)` how far a drive may move before its index wheel could, so
+`wheel_steps(axis, forward)` how far a drive may move before its index wheel could, so
 whole runs of interrupts can be done at once.
 """
 
@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from robox.hardware.deposition import Deposition
-from robox.packed import vec
+from robox.packed import i64, vec
 
 AXES: Final = "XYZEDB"
 X: Final = 0
@@ -159,12 +159,14 @@ class Machine:
     # per extruder, indexed by axis (E, D; the other places are unused): lists, which the
     # step interrupt's calls read natively compiled, where dicts are looked up
     filament: list[Filament | None] = field(default_factory=lambda: [None] * 6)
-    wheel_passed: list[int] = field(default_factory=lambda: [0] * 6)
+    # (packed vectors: compiled, the interrupt's steps add to them natively, where a
+    # list's item is a boxed int)
+    wheel_passed: vec[i64] = field(default_factory=lambda: vec[i64]([0] * 6))
     wheel_base: list[bool] = field(default_factory=lambda: [False, False, False, True,
                                                               False, False])
     wheel_slipping: list[bool] = field(default_factory=lambda: [False] * 6)
     stuck: dict[str, bool] = field(default_factory=dict)  # input name -> level it sticks at
-    extruded: list[int] = field(default_factory=lambda: [0] * 6)  # through a nozzle
+    extruded: vec[i64] = field(default_factory=lambda: vec[i64]([0] * 6))  # through a nozzle
     # mm still to feed (a packed vector: compiled, hand_busy() on every pass reads it natively)
     hand: vec[float] = field(default_factory=lambda: vec[float]([0.0] * 6))
     heaters: dict[str, ThermalModel] = field(default_factory=lambda: {
@@ -241,8 +243,9 @@ class Machine:
             self.wheel_passed[axis] += n
 
     def nozzle_hot(self, axis: int) -> bool:
-        heaters = self.heaters  # (either nozzle: both melt the one path's filament)
-        return heaters["nozzle0"].sensed >= MELT_C or heaters["nozzle1"].sensed >= MELT_C
+        # (either nozzle: both melt the one path's filament)
+        nozzle0, nozzle1 = self._nozzles
+        return nozzle0.sensed >= MELT_C or nozzle1.sensed >= MELT_C
 
     # ------------------------------------------------------------ inputs
     def nozzle_height(self) -> float:
@@ -303,14 +306,15 @@ class Machine:
             return self._switch_margin(select)
         return NEVER
 
-    def wheel_steps(self, axis: int) -> int:
-        """How many microsteps of drive `axis` (E, D) may be made before its index
-        wheel's level can change (the wheel turns with the filament, at most a microstep
-        a step); NEVER where it cannot turn."""
+    def wheel_steps(self, axis: int, forward: bool) -> int:
+        """The microsteps of drive `axis` (E, D) in one direction (`forward`: feeding)
+        whose last may change its index wheel's level: the wheel turns with the
+        filament, at most a microstep a step and never against the drive, so its next
+        edge that way is the nearest; NEVER where it cannot turn."""
         if self.filament[axis] is None or self.wheel_slipping[axis]:
             return NEVER
         r = self.wheel_passed[axis] % INDEX_EDGE_STEPS
-        return min(r + 1, INDEX_EDGE_STEPS - r)
+        return INDEX_EDGE_STEPS - r if forward else r + 1
 
     def _switch_margin(self, axis: int) -> int:
         if axis == X:
@@ -357,6 +361,8 @@ class Machine:
         # the heat models in a list, which advance() goes through (compiled, a list is
         # walked natively where a dict's values are iterated through the generic protocol)
         self._heater_list = list(self.heaters.values())
+        # and the two nozzles', read on every feed step (no lookups by name)
+        self._nozzles = (self.heaters["nozzle0"], self.heaters["nozzle1"])
 
     def advance(self, seconds: float) -> None:
         for heater in self._heater_list:
