@@ -104,7 +104,7 @@ def test_a_needle_on_its_seat_is_shut_though_the_seat_is_a_float32(seat):
     seats = (seat32, -0.70) if seat > 0 else (0.65, seat32)
     dep = Deposition(head_valves("RBX01-SM"), (1.75, 1.75), seats)
     dep.attach(m)
-    assert dep.opening == [0.0, 0.0]
+    assert list(dep.opening) == [0.0, 0.0]
     m.step(E, 1000)
     assert dep.slipped_steps == 1000 - math.floor(PRESSURE_LIMIT_MM3 / MM3_PER_STEP)
     m.step(B, 1 if seat > 0 else -1)  # a microstep off the seat: open

@@ -52,37 +52,39 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Final
 
 from robox.formats.heads import E_FEED, HeadValves
+from robox.packed import i64, vec
 
 if TYPE_CHECKING:
     from robox.hardware.machine import Machine
 
-B_STEPS: float = 2500.0
+B_STEPS: Final = 2500.0
 SEATED: Final = 0.5 / B_STEPS  # a needle nearer its seat than this (B units) is shut
-XY_STEPS: float = 133.7
-Z_STEPS: float = 6400.0
-E_STEPS: float = 747.0
-E_AXIS = 3
-D_AXIS = 4
+XY_STEPS: Final = 133.7
+Z_STEPS: Final = 6400.0
+E_STEPS: Final = 747.0
+E_AXIS: Final = 3
+D_AXIS: Final = 4
 #: mm3 a shut head takes under pressure before its drive slips.
-PRESSURE_LIMIT_MM3 = 1.0
+PRESSURE_LIMIT_MM3: Final = 1.0
 #: A stretch shorter than this (mm) that leaves BLOB_MM3 or more is plastic left with
 #: the head standing (the steps of one move end within a microstep or two of each other).
-STANDING_MM = 0.05
+STANDING_MM: Final = 0.05
 #: Plastic left standing still that makes a blob (less is the tail of a move's steps).
-BLOB_MM3 = 0.01
+BLOB_MM3: Final = 0.01
 #: Plastic further than this (mm) from the last plastic lands where the head is; with
 #: a valve, a path's plastic is followed from its open (a thin line's feed steps are
 #: far apart), without one a travel is told only by the distance.
-ANCHOR_MM = 5.0
-ANCHOR_PLAIN_MM = 1.0
+ANCHOR_MM: Final = 5.0
+ANCHOR_PLAIN_MM: Final = 1.0
 #: Heights this close (mm) are one for merging: on a levelled gantry the nozzle's
 #: height follows the carriage's X by fractions of a microstep.
-SAME_Z_MM = 0.005
+SAME_Z_MM: Final = 0.005
 #: How far (mm) a joint may stand off the line for two stretches to be merged.
-STRAIGHT_MM = 0.01
+STRAIGHT_MM: Final = 0.01
 #: The steps a valve move and the plastic fed in the same run of steps are taken in.
-INTERLEAVE = 16
-#: Rows kept in memory before the older ones go to the spill file, where there is one.
+INTERLEAVE: Final = 16
+#: Rows kept in memory before the older ones go to the spill file, where there is one
+#: (not Final: a test makes it small).
 SPILL_ROWS = 1 << 16
 #: Rows: x0, y0, x1, y1, z, deposited, driven, nozzle, path (-1: a travel).
 COLUMNS = ("x0", "y0", "x1", "y1", "z", "deposited", "driven", "nozzle", "path")
@@ -116,18 +118,27 @@ class Deposition:
         # a plain attribute: looked at on every valve step (a property of the frozen
         # table would be a call into interpreted code from the compiled machine)
         self.has_valve = self.valves.has_valve
-        self.opening = [0.0] * nozzles if self.has_valve else [1.0] * nozzles
-        self.void = [0.0] * nozzles
-        self.pressure = {E_AXIS: 0.0, D_AXIS: 0.0}
-        self.feed_axis = [E_AXIS if f == E_FEED else D_AXIS for f in self.valves.feeds]
-        self.mm3_per_step = {
-            axis: math.pi * d * d / 4.0 / E_STEPS
-            for axis, d in ((E_AXIS, self.diameters_mm[0]), (D_AXIS, self.diameters_mm[1]))}
-        self.path_of = [-1] * nozzles  # the open path of each nozzle
+        # per nozzle and per feed, packed vectors (compiled, read and written natively on
+        # every valve and feed step, where a list's item is a boxed number)
+        self.opening = vec[float]([0.0 if self.has_valve else 1.0] * nozzles)
+        self.void = vec[float]([0.0] * nozzles)
+        # (per feed, indexed by its axis, E or D, the places before unused: where a
+        # dict would be looked up; the frozen table's figures copied, where its
+        # attributes are an interpreted object's)
+        self.pressure = vec[float]([0.0] * (D_AXIS + 1))
+        self.feed_axis = vec[i64]([E_AXIS if f == E_FEED else D_AXIS
+                                   for f in self.valves.feeds])
+        self.mm3_per_step = vec[float]([0.0] * (D_AXIS + 1))
+        for axis, d in ((E_AXIS, self.diameters_mm[0]), (D_AXIS, self.diameters_mm[1])):
+            self.mm3_per_step[axis] = math.pi * d * d / 4.0 / E_STEPS
+        self.ejection_mm3 = vec[float]([float(v) for v in self.valves.ejection_mm3])
+        self.seat = vec[float]([float(self.seats[0]), float(self.seats[1])])
+        self.path_of = vec[i64]([-1] * nozzles)  # the open path of each nozzle
         self.b = 0
         self._anchor = (0.0, 0.0)  # where the last plastic left
         self.judging = True  # whether paths opened now count (a purge before a job: no)
-        self._pending = [0.0, 0.0, 0.0]  # deposited, driven, swallowed since the head moved
+        # deposited, driven, swallowed since the head moved
+        self._pending = vec[float]([0.0, 0.0, 0.0])
         self._pending_z = 0.0  # the nozzle's height when it came
         self._nozzle = self._path = -1
         self.shut_fed_mm3 = 0.0  # fed into a head with its feed's nozzles shut
@@ -136,7 +147,7 @@ class Deposition:
         self._feed_axis = E_AXIS
         self._feed_mm3 = 0.0
         self.slipped_steps = 0
-        self.released_mm3 = [0.0] * nozzles  # plastic that has left each nozzle
+        self.released_mm3 = vec[float]([0.0] * nozzles)  # plastic that has left each nozzle
 
     # ------------------------------------------------------------ machine calls
     def attach(self, machine: Machine) -> None:
@@ -194,8 +205,9 @@ class Deposition:
 
     def _open_nozzle(self, axis: int) -> int:
         """The nozzle of feed `axis` whose needle is off its seat (-1: all shut)."""
-        for n, feed in enumerate(self.feed_axis):
-            if feed == axis and self.opening[n] > 0.0:
+        feeds, opening = self.feed_axis, self.opening
+        for n in range(len(feeds)):
+            if feeds[n] == axis and opening[n] > 0.0:
                 return n
         return -1
 
@@ -212,8 +224,9 @@ class Deposition:
         if not self.has_valve:
             return
         units = b / B_STEPS
+        seat = self.seat
         for n in range(len(self.opening)):
-            o = units - self.seats[0] if n == 0 else self.seats[1] - units
+            o = units - seat[0] if n == 0 else seat[1] - units
             # short of half a microstep off its seat a needle is on it (a seat is the
             # EEPROM's float32, the needle's place whole microsteps)
             o = 0.0 if o < SEATED else 1.0 if o > 1.0 else o
@@ -223,7 +236,7 @@ class Deposition:
             self.opening[n] = o
             if not record:
                 continue
-            ejection = self.valves.ejection_mm3[n]
+            ejection = self.ejection_mm3[n]
             if o < before:  # closing: the needle pushes plastic out
                 push = (before - o) * ejection
                 self._out(n, push, push)
@@ -281,7 +294,7 @@ class Deposition:
         pending[1] += driven
         pending[2] += swallowed
         z = m.nozzle_height() / Z_STEPS
-        dep, drv, swallowed = pending
+        dep, drv, swallowed = pending[0], pending[1], pending[2]
         pending[0] = pending[1] = pending[2] = 0.0
         path = self.path_of[n]
         if swallowed > 0.0 and dep > 0.0:
@@ -296,7 +309,8 @@ class Deposition:
     def _standing(self) -> None:
         """The plastic that waited at the last place: a row of its own where it counts
         (a blob, a refill the void took), otherwise added to the row before."""
-        dep, drv, swallowed = self._pending
+        pending = self._pending
+        dep, drv, swallowed = pending[0], pending[1], pending[2]
         if drv <= 0.0 and dep <= 0.0:
             return
         self._pending[0] = self._pending[1] = self._pending[2] = 0.0
