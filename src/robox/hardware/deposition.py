@@ -41,6 +41,9 @@ carries on straight from the last row (its joint within `STRAIGHT_MM` of the lin
 delivers alike (the deposited share of what was driven within 5%) is merged into it, so
 the record grows with the job's paths and turns, not with its microsteps; given a
 `spill` file, all but the newest rows go there, and memory stays flat in the job's size.
+The newest row, the one a stretch may still merge into, is held in plain attributes
+(read and merged natively when compiled) and joins the columns when the next row
+starts, or at `finish()`.
 """
 
 from __future__ import annotations
@@ -144,6 +147,11 @@ class Deposition:
         self.shut_fed_mm3 = 0.0  # fed into a head with its feed's nozzles shut
         self.feed_waiting = False  # plastic fed in the run of steps under way
         self.spilled = 0  # rows in the spill file
+        # the newest row, not yet in `rows` (see the module's docstring)
+        self._has_last = False
+        self._lx0 = self._ly0 = self._lx1 = self._ly1 = self._lz = 0.0
+        self._ldep = self._ldrv = 0.0
+        self._lnozzle = self._lpath = 0
         self._feed_axis = E_AXIS
         self._feed_mm3 = 0.0
         self.slipped_steps = 0
@@ -313,20 +321,23 @@ class Deposition:
         dep, drv, swallowed = pending[0], pending[1], pending[2]
         if drv <= 0.0 and dep <= 0.0:
             return
-        self._pending[0] = self._pending[1] = self._pending[2] = 0.0
-        r = self.rows
+        pending[0] = pending[1] = pending[2] = 0.0
         z = self._pending_z
-        if dep < BLOB_MM3 and swallowed <= 0.0 and len(r["x0"]) and \
-                r["path"][-1] == self._path and (r["x1"][-1], r["y1"][-1]) == self._anchor:
-            r["deposited"][-1] += dep
-            r["driven"][-1] += drv
+        anchor = self._anchor
+        if dep < BLOB_MM3 and swallowed <= 0.0 and self._has_last and \
+                self._lpath == self._path and self._lx1 == anchor[0] and \
+                self._ly1 == anchor[1]:
+            self._ldep += dep
+            self._ldrv += drv
             return
         self._row(self._anchor, self._anchor, z, dep, drv, self._nozzle, self._path)
 
     def finish(self) -> None:
-        """Close the record: the plastic still waiting where the head stands."""
+        """Close the record: the plastic still waiting where the head stands, and the
+        newest row into the columns."""
         self.flush_feed()
         self._standing()
+        self._keep_last()
 
     def _open_path(self, n: int) -> None:
         if not self.recording:
@@ -354,32 +365,46 @@ class Deposition:
 
     def _row(self, start: tuple[float, float], end: tuple[float, float], z: float,
              dep: float, drv: float, nozzle: int, path: int) -> None:
-        r = self.rows
         x0, y0 = start
         x1, y1 = end
-        if len(r["x0"]) and r["path"][-1] == path and r["nozzle"][-1] == nozzle \
-                and r["x1"][-1] == x0 and r["y1"][-1] == y0 and abs(r["z"][-1] - z) <= SAME_Z_MM:
-            px, py = r["x0"][-1], r["y0"][-1]
+        if self._has_last and self._lpath == path and self._lnozzle == nozzle \
+                and self._lx1 == x0 and self._ly1 == y0 and abs(self._lz - z) <= SAME_Z_MM:
+            px, py = self._lx0, self._ly0
             if _straight(px, py, x0, y0, x1, y1) and \
-                    _alike(r["deposited"][-1], r["driven"][-1], dep, drv) and \
-                    dep <= 4.0 * r["deposited"][-1] * math.hypot(x1 - x0, y1 - y0) \
+                    _alike(self._ldep, self._ldrv, dep, drv) and \
+                    dep <= 4.0 * self._ldep * math.hypot(x1 - x0, y1 - y0) \
                     / max(math.hypot(x0 - px, y0 - py), 1e-9) + BLOB_MM3:
                 # (and no lump: a stretch laying far more per mm than the row stays apart)
-                r["x1"][-1], r["y1"][-1] = x1, y1
-                r["deposited"][-1] += dep
-                r["driven"][-1] += drv
+                self._lx1, self._ly1 = x1, y1
+                self._ldep += dep
+                self._ldrv += drv
                 return
-        for name, value in zip(COLUMNS, (x0, y0, x1, y1, z, dep, drv, float(nozzle),
-                                         float(path)), strict=True):
+        self._keep_last()
+        self._has_last = True
+        self._lx0, self._ly0, self._lx1, self._ly1, self._lz = x0, y0, x1, y1, z
+        self._ldep, self._ldrv = dep, drv
+        self._lnozzle, self._lpath = nozzle, path
+
+    def _keep_last(self) -> None:
+        """The newest row into the columns (the next one starts, or the record closes)."""
+        if not self._has_last:
+            return
+        self._has_last = False
+        r = self.rows
+        for name, value in zip(COLUMNS, self._last(), strict=True):
             r[name].append(value)
-        if self.spill is not None and len(r["x0"]) > SPILL_ROWS:
+        if self.spill is not None and len(r["x0"]) >= SPILL_ROWS:
             self._spill()
 
+    def _last(self) -> tuple[float, ...]:
+        return (self._lx0, self._ly0, self._lx1, self._ly1, self._lz, self._ldep,
+                self._ldrv, float(self._lnozzle), float(self._lpath))
+
     def _spill(self) -> None:
-        """All rows but the last (the one a stretch may still merge into) to the spill
-        file, a chunk of columns: memory stays flat in the job's size."""
+        """The rows in the columns (all but the newest, held apart) to the spill file, a
+        chunk of columns: memory stays flat in the job's size."""
         r = self.rows
-        n = len(r["x0"]) - 1
+        n = len(r["x0"])
         assert self.spill is not None
         with open(self.spill, "ab") as f:
             f.write(n.to_bytes(8, "little"))
@@ -403,6 +428,8 @@ class Deposition:
                     yield from zip(*columns, strict=True)
         r = self.rows
         yield from zip(*(r[name] for name in COLUMNS), strict=True)
+        if self._has_last:
+            yield self._last()
 
 
 def _straight(px: float, py: float, jx: float, jy: float, qx: float, qy: float) -> bool:
