@@ -10,7 +10,8 @@ from setuptools.command.build_ext import build_ext
 # The firmware model's per-pass work: the loop, the step interrupt and block queue,
 # segmenting and positions, G-code, commands, EEPROMs, heaters, C arithmetic and line
 # parsing, the machine the steps move, the EEPROMs' bus and chips, the USB link, the
-# clock, the filament float format; and the host's G-code translator and valve stage.
+# clock, the filament float format; the host's G-code translator and valve stage; and
+# what simulate watches at every queued move and pass.
 NATIVE_MODULES = [
     "src/robox/firmware/carith.py",
     "src/robox/firmware/cline.py",
@@ -36,6 +37,7 @@ NATIVE_MODULES = [
     "src/robox/gcode/translate.py",
     "src/robox/gcode/valve.py",
     "src/robox/gcode/text.py",
+    "src/robox/sim/watch.py",
     "src/robox/packed.py",
 ]
 

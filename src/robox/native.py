@@ -1,5 +1,5 @@
-"""Which of the hot modules (the firmware model's, and the host's G-code translator) run
-compiled.
+"""Which of the hot modules (the firmware model's, the host's G-code translator, and what
+simulate watches) run compiled.
 
 A wheel build (`pip install .`) compiles them with mypyc where a C compiler is
 (buildsys/robox_build.py, setup.py); an editable install, `ROBOX_NATIVE=0` or a machine
@@ -36,6 +36,7 @@ MODULES = (
     "robox.gcode.translate",
     "robox.gcode.valve",
     "robox.gcode.text",
+    "robox.sim.watch",
     "robox.packed",
 )
 

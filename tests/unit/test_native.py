@@ -32,6 +32,18 @@ def test_each_module_reports_how_it_runs(name):
     assert (name in native.compiled_modules()) == (not module.__file__.endswith(".py"))
 
 
+@pytest.mark.parametrize("name", native.MODULES)
+def test_each_module_imports_first_in_a_fresh_interpreter(name):
+    """A compiled module that reads another's class natively needs that class made
+    first: one that imported it only for the type checker crashed the interpreter when
+    it was the first of the package imported."""
+    import subprocess
+
+    run = subprocess.run([sys.executable, "-c", f"import {name}"], capture_output=True,
+                         text=True, cwd=ROOT.parent)
+    assert run.returncode == 0, run.stderr[-2000:]
+
+
 def test_describe_counts_the_compiled_modules():
     n = len(native.compiled_modules())
     text = native.describe()

@@ -28,7 +28,7 @@ import contextlib
 import math
 import os
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,22 +41,20 @@ from robox.gcode import JobFile, Options, head_kind, job_file
 from robox.gcode.files import inspect
 from robox.gcode.translate import DEFAULT_DIAMETER, HEAD_DEFAULT
 from robox.hardware.deposition import Deposition
-from robox.hardware.machine import NOZZLE_MM, B, D, E, X, Y, Z
+from robox.hardware.machine import NOZZLE_MM, D, E
 from robox.offline import sdcard as card_images
 from robox.sim import images
 from robox.sim.printer import CARD_SIZE, VirtualPrinter, create_state
 from robox.sim.quality import Quality, find_lines
+from robox.sim.watch import BED_X_MM, BED_Y_MM, Watch
 
 #: The build plate, in the job's frame (its origin at the plate's front left corner).
-BED_MM = (210.0, 150.0)
-#: A valve opened less than this (of 0..1) counts as shut.
-VALVE_SHUT = 0.05
+BED_MM = (BED_X_MM, BED_Y_MM)
 #: Simulated seconds between the host's error reports.
 POLL_S = 2.0
 #: A job still printing after this much simulated time is given up.
 MAX_PRINT_S = 7 * 24 * 3600.0
 JOB_ID = "simulated"
-EPSILON_MM = 1e-3
 HEATERS = ("nozzle0", "nozzle1", "bed", "ambient")
 
 
@@ -72,58 +70,6 @@ class Setup:
     raw: bool = False  # run the file as it is, even a slicer's
     ejection: tuple[float, ...] | None = None  # mm3 per nozzle (None: the head's own)
     valve: str = "automaker"  # how a slicer's file drives the valve: "automaker", "simple"
-
-
-@dataclass
-class Watch:
-    """What the queued moves did, seen from outside the firmware."""
-
-    fw: object
-    has_valve: bool
-    low: list[float] = field(default_factory=lambda: [math.inf] * 3)
-    high: list[float] = field(default_factory=lambda: [-math.inf] * 3)
-    outside_lines: list[int] = field(default_factory=list)
-    clamped_lines: list[int] = field(default_factory=list)
-    shut_lines: list[int] = field(default_factory=list)
-    shut_mm: list[float] = field(default_factory=lambda: [0.0, 0.0])  # filament, per reel
-    asked: list[float] = field(default_factory=lambda: [math.nan, math.nan])  # X, Y wanted
-
-    start_lines: int = 0  # the job's start sequence: its plastic is not judged
-    deposition: Deposition | None = None
-
-    def attach(self) -> None:
-        self.fw.position.on_move = self.on_move
-
-    @staticmethod
-    def _note(lines: list[int], line: int) -> None:
-        if not lines or lines[-1] != line:
-            lines.append(line)
-
-    def on_move(self, moves: Sequence[float]) -> None:
-        p = self.fw.position
-        line = self.fw.job.line_number
-        if self.deposition is not None and line > self.start_lines:
-            self.deposition.judging = True
-        dest, off, homed = p.destination, p.tool_offset, p.homing_done
-        for i in (X, Y):
-            wanted = dest[i] + off[i]
-            if homed[i] and wanted != self.asked[i]:  # a new destination on this axis
-                self.asked[i] = wanted
-                if wanted < -EPSILON_MM or wanted > p.pa["travel"]["XY"[i]] + EPSILON_MM:
-                    self._note(self.clamped_lines, line)
-        if moves[E] <= 0.0 and moves[D] <= 0.0:
-            return
-        where = (dest[X], dest[Y], dest[Z])
-        for i in range(3):
-            self.low[i] = min(self.low[i], where[i])
-            self.high[i] = max(self.high[i], where[i])
-        if not (-EPSILON_MM <= where[0] <= BED_MM[0] + EPSILON_MM
-                and -EPSILON_MM <= where[1] <= BED_MM[1] + EPSILON_MM):
-            self._note(self.outside_lines, line)
-        if self.has_valve and (not homed[B] or abs(p.position[B]) < VALVE_SHUT):
-            self._note(self.shut_lines, line)
-            for n, axis in enumerate((E, D)):
-                self.shut_mm[n] += max(0.0, moves[axis])
 
 
 @dataclass
@@ -287,8 +233,8 @@ def _judge(virtual: VirtualPrinter, report: Report, job: JobFile) -> None:
 def _print(virtual: VirtualPrinter, watch: Watch, report: Report,
            progress: Callable[[int, int], None] | None, setup: Setup, kind: str) -> None:
     fw = virtual.firmware
-    peak = dict.fromkeys(HEATERS, -math.inf)
     heaters = fw.hw.machine.heaters
+    watch.watch_heaters([heaters[name] for name in HEATERS])
     latched = _errors(virtual)
     watch.attach()
     extruded = list(fw.position.extruded_mm)
@@ -296,19 +242,8 @@ def _print(virtual: VirtualPrinter, watch: Watch, report: Report,
     finished = fw.job.jobs_completed
     virtual.transact(b"\x94" + make_id(JOB_ID))
     pauses: list[int] = []
-    reached = [0]
-
-    def sample() -> bool:
-        for name in HEATERS:
-            reading = heaters[name].temperature
-            if reading > peak[name]:
-                peak[name] = reading
-        job = fw.job
-        reached[0] = max(reached[0], job.line_number)
-        return not job.running or bool(job.pause)
-
     while True:
-        virtual.run_until(sample, POLL_S)
+        virtual.run_until(watch.sample, POLL_S)
         if fw.position.on_move is None:  # the printer was reset: a new position object
             watch.attach()
         bits = _errors(virtual)
@@ -318,7 +253,7 @@ def _print(virtual: VirtualPrinter, watch: Watch, report: Report,
         if not job.running:
             report.completed = job.jobs_completed > finished
             if not report.completed:
-                report.errors.append(f"the job was aborted at line {reached[0]}")
+                report.errors.append(f"the job was aborted at line {watch.reached}")
             break
         if fw.clock.now - started > MAX_PRINT_S:
             report.errors.append(f"still printing after {MAX_PRINT_S / 3600:.0f} hours "
@@ -333,8 +268,9 @@ def _print(virtual: VirtualPrinter, watch: Watch, report: Report,
             pauses.append(job.line_number)
             virtual.transact(b"\x980")
     report.print_time_s = fw.clock.now - started
-    report.lines_run = report.lines if report.completed else reached[0]
-    report.peak_c = {name: round(value, 1) for name, value in peak.items()}
+    report.lines_run = report.lines if report.completed else watch.reached
+    report.peak_c = {name: round(value, 1) for name, value in zip(HEATERS, watch.peak,
+                                                                   strict=True)}
     bits = _errors(virtual) & ~latched
     report.errors += [f"the printer reports {name}" for name in error_names(bits)]
     _volumes(fw, watch, report, extruded, setup, kind)

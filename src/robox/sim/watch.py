@@ -1,0 +1,116 @@
+"""A simulated print watched from outside the firmware: every queued move, every pass.
+
+`simulate` attaches a `Watch` to the position object (`Position.on_move`, called for
+each move it queues) and runs the printer with `Watch.sample` as the condition looked at
+after every pass. Both run hundreds of thousands of times in a print, so this module
+is part of the compiled core (robox.native); `robox.sim.simulate` turns what it saw
+into the report.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+# (Firmware imported at run time, not only for the type checker: the compiled module
+# reads its attributes natively, through its class, which must be there first)
+from robox.firmware.main import Firmware
+from robox.hardware.deposition import Deposition
+from robox.hardware.machine import B, D, E, ThermalModel, X, Y, Z
+
+#: The build plate, in the job's frame (its origin at the plate's front left corner).
+BED_X_MM: Final = 210.0
+BED_Y_MM: Final = 150.0
+#: A valve opened less than this (of 0..1) counts as shut.
+VALVE_SHUT: Final = 0.05
+EPSILON_MM: Final = 1e-3
+
+
+@dataclass
+class Watch:
+    """What the queued moves did, and the heaters' peaks and the job's furthest line
+    over the passes."""
+
+    fw: Firmware
+    has_valve: bool
+    low: list[float] = field(default_factory=lambda: [math.inf] * 3)
+    high: list[float] = field(default_factory=lambda: [-math.inf] * 3)
+    outside_lines: list[int] = field(default_factory=list)
+    clamped_lines: list[int] = field(default_factory=list)
+    shut_lines: list[int] = field(default_factory=list)
+    shut_mm: list[float] = field(default_factory=lambda: [0.0, 0.0])  # filament, per reel
+    asked: list[float] = field(default_factory=lambda: [math.nan, math.nan])  # X, Y wanted
+
+    start_lines: int = 0  # the job's start sequence: its plastic is not judged
+    deposition: Deposition | None = None
+    heaters: list[ThermalModel] = field(default_factory=list)  # read at every pass
+    peak: list[float] = field(default_factory=list)  # each heater's highest reading
+    reached: int = 0  # the furthest line the job came to
+
+    def attach(self) -> None:
+        self.fw.position.on_move = self.on_move
+
+    def watch_heaters(self, heaters: list[ThermalModel]) -> None:
+        self.heaters = heaters
+        self.peak = [-math.inf] * len(heaters)
+
+    def sample(self) -> bool:
+        """After a pass: the peaks and the furthest line brought up to date; whether the
+        job has ended or paused."""
+        peak = self.peak
+        heaters = self.heaters
+        for k in range(len(heaters)):
+            reading = heaters[k].temperature
+            if reading > peak[k]:
+                peak[k] = reading
+        job = self.fw.job
+        line: int = job.line_number
+        if line > self.reached:
+            self.reached = line
+        return not job.running or bool(job.pause)
+
+    @staticmethod
+    def _note(lines: list[int], line: int) -> None:
+        if not lines or lines[-1] != line:
+            lines.append(line)
+
+    def on_move(self, moves: Any) -> None:
+        # (`moves` is the position object's packed vector, boxed for this call; taken
+        # as any object: a compiled method that takes a packed vector through its
+        # Python entry keeps a reference to each one passed, and the segments' vectors
+        # would pile up, one per queued move)
+        fw = self.fw
+        p = fw.position
+        line: int = fw.job.line_number
+        deposition = self.deposition
+        if deposition is not None and line > self.start_lines:
+            deposition.judging = True
+        dest, off, homed = p.destination, p.tool_offset, p.homing_done
+        asked = self.asked
+        for i in range(X, Y + 1):
+            wanted = dest[i] + off[i]
+            if homed[i] and wanted != asked[i]:  # a new destination on this axis
+                asked[i] = wanted
+                travel: float = p.pa["travel"]["XY"[i]]
+                if wanted < -EPSILON_MM or wanted > travel + EPSILON_MM:
+                    self._note(self.clamped_lines, line)
+        if moves[E] <= 0.0 and moves[D] <= 0.0:
+            return
+        low, high = self.low, self.high
+        for i in range(X, Z + 1):
+            w = dest[i]
+            if w < low[i]:
+                low[i] = w
+            if w > high[i]:
+                high[i] = w
+        x, y = dest[X], dest[Y]
+        if not (-EPSILON_MM <= x <= BED_X_MM + EPSILON_MM
+                and -EPSILON_MM <= y <= BED_Y_MM + EPSILON_MM):
+            self._note(self.outside_lines, line)
+        if self.has_valve and (not homed[B] or abs(p.position[B]) < VALVE_SHUT):
+            self._note(self.shut_lines, line)
+            for n in range(2):
+                pushed = moves[E + n]
+                if pushed > 0.0:
+                    self.shut_mm[n] += pushed
