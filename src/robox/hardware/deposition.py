@@ -152,6 +152,8 @@ class Deposition:
         self._lx0 = self._ly0 = self._lx1 = self._ly1 = self._lz = 0.0
         self._ldep = self._ldrv = 0.0
         self._lnozzle = self._lpath = 0
+        # the columns in COLUMNS' order (the same arrays: a spill empties them in place)
+        self._columns = [self.rows[name] for name in COLUMNS]
         self._feed_axis = E_AXIS
         self._feed_mm3 = 0.0
         self.slipped_steps = 0
@@ -390,10 +392,17 @@ class Deposition:
         if not self._has_last:
             return
         self._has_last = False
-        r = self.rows
-        for name, value in zip(COLUMNS, self._last(), strict=True):
-            r[name].append(value)
-        if self.spill is not None and len(r["x0"]) >= SPILL_ROWS:
+        c = self._columns  # (one append each: no tuple of the row, no lookups by name)
+        c[0].append(self._lx0)
+        c[1].append(self._ly0)
+        c[2].append(self._lx1)
+        c[3].append(self._ly1)
+        c[4].append(self._lz)
+        c[5].append(self._ldep)
+        c[6].append(self._ldrv)
+        c[7].append(float(self._lnozzle))
+        c[8].append(float(self._lpath))
+        if self.spill is not None and len(c[0]) >= SPILL_ROWS:
             self._spill()
 
     def _last(self) -> tuple[float, ...]:
