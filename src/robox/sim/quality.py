@@ -161,30 +161,53 @@ _WORD = re.compile(r"([XYZ])\s*([-+]?\d*\.?\d+)", re.I)
 
 def find_lines(job: str | os.PathLike, places: list[Place]) -> None:
     """Each place's line: the job's move that ends nearest to it (its layer's height
-    weighed heavily), found in one pass over the job."""
+    weighed heavily; of equals, the first), found in one pass over the job. A move is
+    measured against a place only where its height alone leaves it a chance: the
+    heights' part is worked out once per height the job moves to (a job keeps one for
+    a layer's moves), and the places it already puts further than their nearest so
+    far are passed by."""
     if not places:
         return
-    best = [math.inf] * len(places)
-    pos = {"X": 0.0, "Y": 0.0, "Z": 0.0}
+    n = len(places)
+    px = [p.x for p in places]
+    py = [p.y for p in places]
+    pz = [p.z for p in places]
+    best = [math.inf] * n
+    floors = [0.0] * n  # 100 (z - the place's z)^2 at the height the moves are at
+    floors_z = math.nan
+    x = y = z = 0.0
     relative = False
     # (text with universal newlines: a job's lines may end in CR, CR LF or LF)
     with open(job, encoding="latin-1", newline=None) as f:
         for number, raw in enumerate(f, 1):
-            line = raw.split(";", 1)[0].lstrip().upper()
-            if line.startswith("G91"):
+            line = raw.split(";", 1)[0] if ";" in raw else raw
+            head = line.lstrip()[:3].upper()
+            if head == "G91":
                 relative = True
-            elif line.startswith("G90"):
+            elif head == "G90":
                 relative = False
             if not _MOVE.match(line):
                 continue
             for letter, value in _WORD.findall(line):
-                pos[letter] = pos[letter] + float(value) if relative else float(value)
-            x, y, z = pos["X"], pos["Y"], pos["Z"]
-            for i, p in enumerate(places):
-                d = (x - p.x) ** 2 + (y - p.y) ** 2 + 100.0 * (z - p.z) ** 2
+                v = float(value)
+                letter = letter.upper()
+                if letter == "X":
+                    x = x + v if relative else v
+                elif letter == "Y":
+                    y = y + v if relative else v
+                else:
+                    z = z + v if relative else v
+            if z != floors_z:
+                floors = [100.0 * (z - h) ** 2 for h in pz]
+                floors_z = z
+            for i in range(n):
+                floor = floors[i]
+                if floor > best[i]:
+                    continue  # (the whole distance is at least this)
+                d = (x - px[i]) ** 2 + (y - py[i]) ** 2 + floor
                 if d < best[i]:
                     best[i] = d
-                    p.line = number
+                    places[i].line = number
 
 
 def plot(quality: Quality, target: str | os.PathLike, layer: int | None,
