@@ -608,20 +608,9 @@ class Motion:
         if self.fw.job.abort_flag or most < 2:  # (an abort counts every interrupt)
             self._interrupt(blk, m)
             return
-        biggest: i64 = 0
-        for i in blk.movers:
-            inc: i64 = blk.inc[i]
-            if inc < 0:
-                inc = -inc
-            if inc > biggest:
-                biggest = inc
-        # the switch reads as it does now after each of the run's interrupts: every
-        # motor a microstep short of where it could change
-        quiet: i64 = m.quiet_steps(self.switch_select)
-        if quiet < (1 << 59) and biggest > 0:
-            k: i64 = ((quiet - 1) * 65536 - 65535) // biggest
-            if k < most:
-                most = k
+        quiet = self._quiet_cap(blk, m, self.switch_select)
+        if quiet < most:
+            most = quiet
         wheels: i64 = self._wheel_cap(blk, m)
         if wheels < most:
             most = wheels
@@ -674,12 +663,36 @@ class Motion:
             count += 1
             if settled or count >= most or tick > end:
                 break
+        self._ran(blk, count, s, period, last, tick)
+
+    def _ran(self, blk: Block, count: i64, s: i64, period: i64, last: i64,
+             tick: i64) -> None:
+        """The end of a run of `count` interrupts worked out in a loop: each moving
+        axis's steps made at once, the speed, period and ticks where the last left them."""
         self._step_movers(blk, count)
         self.speed_x4k = s
         self.timer_period = period
         self.last_tick = last
         self.next_tick = tick
         self.interrupts += count
+
+    def _quiet_cap(self, blk: Block, m: Machine, select: int | None) -> i64:
+        """How many interrupts of this block leave the switch `select` watches (None:
+        none) reading as it does now after each: the fastest motor a microstep short of
+        where it could change, whatever its accumulator holds. NO_CAP if none can."""
+        quiet: i64 = m.quiet_steps(select)
+        if quiet >= (1 << 59):
+            return NO_CAP
+        biggest: i64 = 0
+        for i in blk.movers:
+            inc: i64 = blk.inc[i]
+            if inc < 0:
+                inc = -inc
+            if inc > biggest:
+                biggest = inc
+        if biggest == 0:
+            return NO_CAP
+        return ((quiet - 1) * 65536 - 65535) // biggest
 
     def _wheel_cap(self, blk: Block, m: Machine) -> int:
         """How many interrupts of this block can be made with the index wheels read once,
@@ -879,14 +892,9 @@ class Motion:
             count += 1
             if settled or count >= most or tick > end:
                 break
-        self._step_movers(blk, count)
         self.queued_length -= blk.length - length
         blk.length = length
-        self.speed_x4k = s
-        self.timer_period = period
-        self.last_tick = last
-        self.next_tick = tick
-        self.interrupts += count
+        self._ran(blk, count, s, period, last, tick)
         if length == 0:
             self.buffer_out = (self.buffer_out + 1) & MASK
             self.active = False
@@ -938,16 +946,9 @@ class Motion:
         if watching:
             k = min(k, self.switch_abandon_counter)
         k = min(k, (limit - self.next_tick) // self.timer_period + 1)
-        biggest: i64 = 0
-        for i in blk.movers:
-            inc: i64 = blk.inc[i]
-            if inc < 0:
-                inc = -inc
-            if inc > biggest:
-                biggest = inc
-        quiet = m.quiet_steps(self.switch_select if watching else None)
-        if quiet < (1 << 59):
-            k = min(k, ((quiet - 1) * 65536 - 65535) // biggest)
+        quiet = self._quiet_cap(blk, m, self.switch_select if watching else None)
+        if quiet < k:
+            k = quiet
         wheels = self._wheel_cap(blk, m)
         if wheels < k:
             k = wheels
