@@ -108,6 +108,17 @@ def _max_speed_step(acceleration: int, allowable_error: int) -> int:
     return int(max(1.0, min(4294967296.0, v)))
 
 
+def _braking_root(blk: Block, a: i64) -> i64:
+    """The interrupt's square root (in speed units, before its shift to the x4k scale):
+    the speed from which the block can still slow to its end speed over the length
+    left, less one, at most 2^23 (the radicand wraps at 32 bits, as the C's does)."""
+    capped: i64 = blk.length - 1
+    if capped > 0x00800000:
+        capped = 0x00800000
+    end_speed: i64 = blk.end_speed
+    return isqrt32(((capped << 1) * a + ((end_speed * end_speed) >> 4)) & U32)
+
+
 class Motion:
     # the interrupt's integers: native ones when compiled (robox.native)
     speed_x4k: i64
@@ -633,11 +644,7 @@ class Motion:
         by the held length, in a tight loop; the steps made at the end, all at once.
         Stops once the speed holds (a run may follow), at `limit` or after `most`."""
         a: i64 = self.parameters.acceleration
-        c: i64 = (blk.end_speed * blk.end_speed) >> 4
-        capped: i64 = blk.length - 1
-        if capped > 0x00800000:
-            capped = 0x00800000
-        v: i64 = isqrt32(((capped << 1) * a + c) & U32) << 14
+        v: i64 = _braking_root(blk, a) << 14
         top: i64 = blk.speed << 12
         if v < top:
             top = v
@@ -752,13 +759,9 @@ class Motion:
             if (v ^ w) & 0xFFFF0000:
                 m.step(i, 1 if inc[i] > 0 else -1)
         a: i64 = self.parameters.acceleration
+        v = _braking_root(blk, a)
         # (two-way ifs, not min() of three: compiled, native integers, where a min() of
         # three calls the builtin on boxed ones)
-        capped: i64 = blk.length - 1
-        if capped > 0x00800000:
-            capped = 0x00800000
-        end_speed: i64 = blk.end_speed
-        v = isqrt32(((capped << 1) * a + ((end_speed * end_speed) >> 4)) & U32)
         period: i64 = self.timer_period
         if period > self.max_period_for_ramping:
             period = self.max_period_for_ramping
@@ -927,7 +930,7 @@ class Motion:
         length = blk.length
         if length <= 1:
             return 1
-        v = isqrt32(((min(0x00800000, length - 1) << 1) * a + c) & U32)
+        v = _braking_root(blk, a)
         if max(MIN_SPEED << 12, min(v << 14, blk.speed << 12)) != s:
             return 1
         if counting:
