@@ -406,6 +406,31 @@ def test_g36_pushes_against_a_cold_nozzle_until_the_filament_slips(wire):
     assert set(wire.ack(b"\xb3")) == {"0"}  # slip was expected: no error
 
 
+def test_slip_thresholds_follow_m909_m92_and_the_mode(wire):
+    """The slip threshold (16.16 steps) is f32(f32(f32(steps/mm * M909's mm) * the
+    reel's multiplier) * 65536), worked out afresh whenever one of them changes: M909's
+    S (normal moves) and T (G36), M92's E or D."""
+    motion = wire.fw.motion
+
+    def expected(spu: float, mm: float) -> int:
+        return int(f32(f32(f32(f32(spu) * f32(mm)) * 1.0) * 65536.0))
+
+    assert motion._slip_threshold(0) == expected(747.0, 10.0)
+    assert motion._slip_threshold(1) == expected(747.0, 10.0)
+    run(wire, "M909 S2.5")
+    assert motion._slip_threshold(0) == expected(747.0, 2.5)
+    run(wire, "M92 E500")
+    assert motion._slip_threshold(0) == expected(500.0, 2.5)
+    assert motion._slip_threshold(1) == expected(747.0, 2.5)
+    run(wire, "M909 T1.5")
+    motion.what = motion_module.UNTIL_SLIP
+    try:
+        assert motion._slip_threshold(0) == expected(500.0, 1.5)
+    finally:
+        motion.what = motion_module.NORMAL
+    assert motion._slip_threshold(0) == expected(500.0, 2.5)
+
+
 def test_g36_through_a_hot_nozzle_runs_its_whole_distance(wire):
     m = wire.printer.hw.machine
     m.heaters["nozzle0"].temperature = 200.0

@@ -132,6 +132,8 @@ class Motion:
     interrupts: i64
     switch_abandon_counter: i64
     acc: vec[i64]  # the step accumulators, per axis
+    _slip_inputs: vec[float]
+    _slip_thresholds: vec[i64]
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
@@ -168,6 +170,10 @@ class Motion:
         self.holdoff_since = fw.clock.now
         self.z_top_counter = 0
         self.interrupts = 0
+        # _slip_threshold's last inputs (threshold, steps per unit, multiplier) and
+        # answer, per drive (NaN: none yet, equal to nothing)
+        self._slip_inputs = vec[float]([math.nan] * 6)
+        self._slip_thresholds = vec[i64]([0, 0])
 
     @staticmethod
     def tick_of(seconds: float) -> int:
@@ -284,13 +290,25 @@ class Motion:
 
     def _slip_threshold(self, i: int) -> int:
         """The count (16.16, steps since the wheel's last edge) past which drive i's
-        filament has slipped."""
-        threshold_mm = self.pa["filament_until_slip_threshold" if self.what == UNTIL_SLIP
-                               else "filament_slip_threshold"]
-        spu: float = self.fw.parameters.steps_per_unit[E + i]
-        temp = float32(float32(float32(spu * threshold_mm)
-                               * self.fw.position.filament_multiplier(i)) * 65536.0)
-        return int(temp) if temp < 2147483648.0 else 0x7FFFFFFF
+        filament has slipped. Every pass asks, and its inputs (M909's threshold, M92's
+        steps, the reel's multiplier) hardly ever change: the last answer for each
+        drive is kept with the inputs it came from."""
+        pa = self.parameters
+        threshold_mm = pa.until_slip_threshold_mm if self.what == UNTIL_SLIP \
+            else pa.slip_threshold_mm
+        spu: float = pa.steps_per_unit[E + i]
+        multiplier = self.fw.position.filament_multiplier(i)
+        memo = self._slip_inputs
+        k = 3 * i
+        if memo[k] == threshold_mm and memo[k + 1] == spu and memo[k + 2] == multiplier:
+            return self._slip_thresholds[i]
+        temp = float32(float32(float32(spu * threshold_mm) * multiplier) * 65536.0)
+        answer: i64 = int(temp) if temp < 2147483648.0 else 0x7FFFFFFF
+        memo[k] = threshold_mm
+        memo[k + 1] = spu
+        memo[k + 2] = multiplier
+        self._slip_thresholds[i] = answer
+        return answer
 
     def _slip_count(self, axis: int) -> int:
         """The drive's accumulator read as a signed long: its magnitude."""

@@ -89,6 +89,9 @@ class Parameters:
     max_speed: vec[float]
     travel: vec[float]
     invert_switch: list[int]
+    #: M909's slip thresholds (mm), as native floats for the pass that watches the wheels
+    slip_threshold_mm: float
+    until_slip_threshold_mm: float
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
@@ -96,6 +99,7 @@ class Parameters:
         self.acceleration = 0
         self.steps_per_unit = self.max_speed = self.travel = vec[float]([])
         self.invert_switch = []
+        self.slip_threshold_mm = self.until_slip_threshold_mm = 0.0
 
     def initialise(self) -> None:
         self.defaults()
@@ -122,6 +126,8 @@ class Parameters:
         self.max_speed = self._axis_floats("max_speed")
         self.travel = self._axis_floats("travel")
         self.invert_switch = [int(values["invert_switch"][axis]) for axis in AXES]
+        self.slip_threshold_mm = float(values["filament_slip_threshold"])
+        self.until_slip_threshold_mm = float(values["filament_until_slip_threshold"])
 
     def _axis_floats(self, name: str) -> vec[float]:
         values = self.values[name]
