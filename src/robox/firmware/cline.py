@@ -144,12 +144,16 @@ class Line:
         # the first CR, LF, ';', '(' or NUL, byte by byte (compiled, a native loop: a
         # regular expression's character class costs several times as much here)
         n = len(raw)
+        end = n
         for k in range(n):
             c = raw[k]
             if c < 60 and (c == 13 or c == 10 or c == 59 or c == 40 or c == 0):
-                self.text = bytes(raw[:k])
-                return
-        self.text = bytes(raw)
+                end = k
+                break
+        text = raw[:end] if end < n else raw
+        # (a bytearray made bytes; bytes kept as they are: compiled, bytes() is a
+        # generic call, and it costs a line more than all the rest of reading it)
+        self.text = text if isinstance(text, bytes) else bytes(text)
 
     # A parameter is found by its letter's first occurrence (strchr) and read from the
     # byte after it, in place.

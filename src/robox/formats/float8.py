@@ -13,6 +13,7 @@ from typing import Final
 
 from robox.errors import UsageError
 from robox.firmware.carith import f32
+from robox.packed import i64
 
 WIDTH = 8
 _NUMBER = re.compile(
@@ -85,27 +86,31 @@ def skip_blanks(text: bytes, i: int) -> int:
     return i
 
 
-def short_decimal(text: bytes, i: int) -> float:
+def short_decimal(text: bytes, i: int, to_end: bool = False) -> float:
     """strtod's value of a short plain decimal right at `i` (an optional sign, then at
     most 15 digits with at most one point among them, and no exponent or hexadecimal
     prefix after), NaN for anything else. Nearly every number a slicer writes, and
-    every float8 a printer writes, is one.
+    every float8 a printer writes, is one. With `to_end` the number must end the
+    text: then it is also the value float() reads from text[i:].
     The digits make a whole number below 2**53 and the point a power of ten up to
     1e15, both exact as doubles, so their quotient is the correctly rounded value
     strtod gives (the classic exact case of decimal conversion)."""
-    n = len(text)
+    # (native integers: compiled, the digits are added up without overflow checks; the
+    # whole number stops growing past 16 digits, where the answer is NaN anyway)
+    n: i64 = len(text)
     negative = False
-    k = i
+    k: i64 = i
     if k < n and (text[k] == 45 or text[k] == 43):  # - or +
         negative = text[k] == 45
         k += 1
-    whole = 0
-    digits = 0
-    places = -1  # digits after the point (-1: no point yet)
+    whole: i64 = 0
+    digits: i64 = 0
+    places: i64 = -1  # digits after the point (-1: no point yet)
     while k < n:
         c = text[k]
         if 48 <= c <= 57:
-            whole = whole * 10 + (c - 48)
+            if digits <= 15:
+                whole = whole * 10 + (c - 48)
             digits += 1
             if places >= 0:
                 places += 1
@@ -115,7 +120,7 @@ def short_decimal(text: bytes, i: int) -> float:
             break
         k += 1
     after = text[k] | 0x20 if k < n else 0  # the byte after, lower-cased
-    if digits == 0 or digits > 15 or after == 101 or after == 120:  # e, x: not so short
-        return math.nan
+    if digits == 0 or digits > 15 or after == 101 or after == 120 or (to_end and k < n):
+        return math.nan  # (e, x after it: not so short)
     value = float(whole) / _POWERS_OF_TEN[places] if places > 0 else float(whole)
     return -value if negative else value

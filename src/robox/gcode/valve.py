@@ -42,6 +42,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Final
 
+from robox.formats.float8 import short_decimal
 from robox.formats.heads import OPENS_BEFORE_RESELECT, PARTIAL_B_MINIMUM, HeadValves
 from robox.gcode.text import number
 
@@ -77,10 +78,31 @@ def _spaced(line: bytes) -> list[bytes]:
 
 
 def _float(value: bytes) -> float:
+    plain = short_decimal(value, 0, True)  # (nearly every value: no generic float())
+    if plain == plain:
+        return plain
     try:
         return float(value) if value else 0.0
     except ValueError:
         return 0.0
+
+
+def _code(line: bytes) -> bytes:
+    """The line's first word, upper-cased (b"" for none): line.split(None, 1)[0].upper()
+    found in one native loop (compiled, the two method calls cost more than the rest of
+    a line's look at it)."""
+    n = len(line)
+    i = 0
+    while i < n and (line[i] == 32 or 9 <= line[i] <= 13):
+        i += 1
+    j = i
+    lower = False
+    while j < n and not (line[j] == 32 or 9 <= line[j] <= 13):
+        if 97 <= line[j] <= 122:
+            lower = True
+        j += 1
+    word = line[i:j]
+    return word.upper() if lower else word
 
 
 def feature_class(name: str) -> str:
@@ -163,7 +185,7 @@ class ValveStage:
         if line.startswith(b";TYPE:"):
             self.feature = feature_class(line[6:].decode("ascii", "replace"))
             return
-        code = line.split(None, 1)[0].upper() if line else b""
+        code = _code(line)
         if self.relative:
             if code == b"G90":
                 self.relative = False
