@@ -9,9 +9,12 @@ import re
 
 import pytest
 from click.testing import CliRunner
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from robox.cli import cli
 from robox.gcode import Options, detect, translate
+from robox.gcode import valve as valve_module
 from robox.gcode.valve import MAX_BUFFER
 
 AREA = math.pi * 1.75 * 1.75 / 4
@@ -197,3 +200,34 @@ def test_other_slicers_walls_are_known_too(slicer, outer, inner):
     _, s = run(f"{slicer}\nM83\n;TYPE:{inner}\nG1 X0 Y0\nG1 X30 Y0 E{3.0 / AREA}\n"
                  f";TYPE:{outer}\nG1 X0 Y1\nG1 X30 Y1 E{3.0 / AREA}\nG1 E-1\n")
     assert s.valve["closes_on_inner_wall"] == 1
+
+
+_VALUE_BYTES = st.one_of(
+    st.from_regex(rb"\A[+-]?[0-9]{0,17}(\.[0-9]{0,17})?\Z"),
+    st.binary(max_size=12),
+    st.sampled_from([b"", b".", b"-", b"+.5", b"1.", b"-0", b"1e3", b"0x1p3", b"inf",
+                     b"nan", b" 2.5", b"2.5 ", b"1_0", b"0.015625"]),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(_VALUE_BYTES)
+@example(b"123456789012345")  # 15 digits: the most read without float()
+@example(b"-1234567.89012345")
+@example(b"1234567890123456")  # 16: float()'s
+def test_a_words_value_is_what_float_reads_or_0(value):
+    """The valve stage reads a word's value as float() does, 0 where float() refuses:
+    the plain decimals it reads itself included."""
+    try:
+        expected = float(value) if value else 0.0
+    except ValueError:
+        expected = 0.0
+    got = valve_module._float(value)
+    assert (got == expected and math.copysign(1, got) == math.copysign(1, expected)) \
+        or (got != got and expected != expected)
+
+
+@given(st.binary(max_size=16))
+def test_a_lines_code_is_its_first_word_upper_cased(line):
+    words = line.split(None, 1)
+    assert valve_module._code(line) == (words[0].upper() if words else b"")
