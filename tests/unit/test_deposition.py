@@ -187,3 +187,35 @@ def test_rows_spilled_to_a_file_read_back_as_kept_in_memory(tmp_path, monkeypatc
     spilled.finish()
     assert spilled.spilled > 10 and len(spilled.rows["x0"]) <= 4
     assert list(spilled.iter_rows()) == list(kept.iter_rows())
+
+
+# Places on the machine's microstep grid (133.7 per mm), and joints on, beside and
+# exactly STRAIGHT_MM off the line between them.
+_PLACE = st.integers(0, 200 * 134).map(lambda n: n / 133.7)
+
+
+@settings(max_examples=600, deadline=None)
+@given(_PLACE, _PLACE, _PLACE, _PLACE, st.floats(0.0, 1.0),
+       st.sampled_from([0.0, 1e-3, 0.01, -0.01, 0.0100001, 0.05]),
+       st.floats(0.0, 2.0), st.floats(0.0, 2.0))
+def test_joints_and_lumps_are_judged_as_with_math_hypot(px, py, qx, qy, t, off, dep0,
+                                                          dep1):
+    """A stretch joins the row before on the same judgements as with math.hypot's
+    lengths (the record takes them from a native square root, and math.hypot only where
+    the two could disagree)."""
+    from robox.hardware import deposition
+
+    jx, jy = px + (qx - px) * t + off, py + (qy - py) * t
+    dx, dy = qx - px, qy - py
+    if (px == jx and py == jy) or (jx == qx and jy == qy):
+        straight = px == jx and py == jy and jx == qx and jy == qy
+    elif (jx - px) * dx + (jy - py) * dy <= 0.0 or (qx - jx) * dx + (qy - jy) * dy < 0.0:
+        straight = False
+    else:
+        straight = abs((jx - px) * dy - (jy - py) * dx) \
+            <= deposition.STRAIGHT_MM * math.hypot(dx, dy)
+    assert deposition._straight(px, py, jx, jy, qx, qy) == straight
+    bound = 4.0 * dep0 * math.hypot(qx - jx, qy - jy) / max(math.hypot(jx - px, jy - py),
+                                                            1e-9) + deposition.BLOB_MM3
+    for laid in (dep1, bound, math.nextafter(bound, 0.0), math.nextafter(bound, 9.0)):
+        assert deposition._no_lump(dep0, laid, px, py, jx, jy, qx, qy) == (laid <= bound)

@@ -42,8 +42,8 @@ delivers alike (the deposited share of what was driven within 5%) is merged into
 the record grows with the job's paths and turns, not with its microsteps; given a
 `spill` file, all but the newest rows go there, and memory stays flat in the job's size.
 The newest row, the one a stretch may still merge into, is held in plain attributes
-(read and merged natively when compiled) and joins the columns when the next row
-starts, or at `finish()`.
+(read and merged natively when compiled); when the next row starts it goes to lists
+that join the columns `STAGED_ROWS` at a time, and at `finish()` or a read of the rows.
 """
 
 from __future__ import annotations
@@ -84,6 +84,9 @@ ANCHOR_PLAIN_MM: Final = 1.0
 SAME_Z_MM: Final = 0.005
 #: How far (mm) a joint may stand off the line for two stretches to be merged.
 STRAIGHT_MM: Final = 0.01
+#: A comparison with a length worked out as _near_hypot() does, not math.hypot(), is
+#: trusted when the sides differ by more than this share of it.
+NEAR: Final = 1e-9
 #: The steps a valve move and the plastic fed in the same run of steps are taken in.
 INTERLEAVE: Final = 16
 #: Rows kept in memory before the older ones go to the spill file, where there is one
@@ -91,6 +94,8 @@ INTERLEAVE: Final = 16
 SPILL_ROWS = 1 << 16
 #: Rows: x0, y0, x1, y1, z, deposited, driven, nozzle, path (-1: a travel).
 COLUMNS = ("x0", "y0", "x1", "y1", "z", "deposited", "driven", "nozzle", "path")
+#: Finished rows gathered in lists before they join the columns, a column at a time.
+STAGED_ROWS: Final = 1024
 
 
 @dataclass
@@ -138,7 +143,9 @@ class Deposition:
         self.seat = vec[float]([float(self.seats[0]), float(self.seats[1])])
         self.path_of = vec[i64]([-1] * nozzles)  # the open path of each nozzle
         self.b = 0
-        self._anchor = (0.0, 0.0)  # where the last plastic left
+        # where the last plastic left (two floats: compiled, native, where a tuple's
+        # are boxed and compared generically)
+        self._ax = self._ay = 0.0
         self.judging = True  # whether paths opened now count (a purge before a job: no)
         # deposited, driven, swallowed since the head moved
         self._pending = vec[float]([0.0, 0.0, 0.0])
@@ -154,6 +161,9 @@ class Deposition:
         self._lnozzle = self._lpath = 0
         # the columns in COLUMNS' order (the same arrays: a spill empties them in place)
         self._columns = [self.rows[name] for name in COLUMNS]
+        # finished rows on their way to the columns (compiled, a list's append is native,
+        # an array's a generic method call: 700 instructions a number)
+        self._staged: list[list[float]] = [[] for _ in COLUMNS]
         self._feed_axis = E_AXIS
         self._feed_mm3 = 0.0
         self.slipped_steps = 0
@@ -164,7 +174,7 @@ class Deposition:
         """Start watching `machine` (its valve and head where they are now)."""
         self.machine = machine
         self.b = machine.b
-        self._anchor = (machine.x / XY_STEPS, machine.y / XY_STEPS)
+        self._ax, self._ay = machine.x / XY_STEPS, machine.y / XY_STEPS
         self._set_openings(machine.b, record=False)
         machine.deposition = self
 
@@ -275,23 +285,22 @@ class Deposition:
         if not self.recording:
             return
         m = self.machine
-        here = (m.x / XY_STEPS, m.y / XY_STEPS)
-        start = self._anchor
+        hx, hy = m.x / XY_STEPS, m.y / XY_STEPS  # here
+        sx, sy = self._ax, self._ay  # the start
         reach = ANCHOR_MM if self.has_valve else ANCHOR_PLAIN_MM
-        if start != here and (abs(here[0] - start[0]) > reach
-                              or abs(here[1] - start[1]) > reach):
+        if (sx != hx or sy != hy) and (abs(hx - sx) > reach or abs(hy - sy) > reach):
             self._standing()  # what was left where the head stood
-            self._row(start, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)
+            self._row(sx, sy, hx, hy, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)
             if not self.has_valve:  # without a valve, a travel ends the paths
                 for k in range(len(self.path_of)):
                     self._close_path(k)
-            start = here
+            sx, sy = hx, hy
         if self.path_of[n] < 0:  # plastic on a head without a valve starts a path
             self._open_path(n)
-        self._anchor = here
+        self._ax, self._ay = hx, hy
         self._nozzle, self._path = n, self.path_of[n]
         pending = self._pending
-        if start == here:  # the head has not moved since the last plastic: it waits
+        if sx == hx and sy == hy:  # the head has not moved since the last plastic: it waits
             if pending[1] <= 0.0:
                 self._pending_z = m.nozzle_height() / Z_STEPS
             pending[0] += mm3 - swallowed
@@ -300,9 +309,9 @@ class Deposition:
             return
         if pending[0] >= BLOB_MM3 or pending[2] > 0.0:
             # what waited was left standing: a blob, or a refill the void took
-            self._anchor = start
+            self._ax, self._ay = sx, sy
             self._standing()
-            self._anchor = here
+            self._ax, self._ay = hx, hy
         pending[0] += mm3 - swallowed
         pending[1] += driven
         pending[2] += swallowed
@@ -313,11 +322,11 @@ class Deposition:
         if swallowed > 0.0 and dep > 0.0:
             # the void takes the stretch's first plastic: split where it is full
             f = swallowed / (swallowed + dep)
-            mid = (start[0] + (here[0] - start[0]) * f, start[1] + (here[1] - start[1]) * f)
-            self._row(start, mid, z, 0.0, drv * f, n, path)
-            self._row(mid, here, z, dep, drv * (1.0 - f), n, path)
+            mx, my = sx + (hx - sx) * f, sy + (hy - sy) * f
+            self._row(sx, sy, mx, my, z, 0.0, drv * f, n, path)
+            self._row(mx, my, hx, hy, z, dep, drv * (1.0 - f), n, path)
         else:
-            self._row(start, here, z, dep, drv, n, path)
+            self._row(sx, sy, hx, hy, z, dep, drv, n, path)
 
     def _standing(self) -> None:
         """The plastic that waited at the last place: a row of its own where it counts
@@ -328,14 +337,13 @@ class Deposition:
             return
         pending[0] = pending[1] = pending[2] = 0.0
         z = self._pending_z
-        anchor = self._anchor
+        ax, ay = self._ax, self._ay
         if dep < BLOB_MM3 and swallowed <= 0.0 and self._has_last and \
-                self._lpath == self._path and self._lx1 == anchor[0] and \
-                self._ly1 == anchor[1]:
+                self._lpath == self._path and self._lx1 == ax and self._ly1 == ay:
             self._ldep += dep
             self._ldrv += drv
             return
-        self._row(self._anchor, self._anchor, z, dep, drv, self._nozzle, self._path)
+        self._row(ax, ay, ax, ay, z, dep, drv, self._nozzle, self._path)
 
     def finish(self) -> None:
         """Close the record: the plastic still waiting where the head stands, and the
@@ -343,6 +351,7 @@ class Deposition:
         self.flush_feed()
         self._standing()
         self._keep_last()
+        self._settle()
 
     def _open_path(self, n: int) -> None:
         if not self.recording:
@@ -350,11 +359,11 @@ class Deposition:
             return
         m = self.machine
         self._standing()
-        here = (m.x / XY_STEPS, m.y / XY_STEPS)
-        last = self._anchor
-        if self.has_valve and last != here:
-            self._row(last, here, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1, -1)  # travel
-        self._anchor = here  # a new path's plastic is laid from where it opened
+        hx, hy = m.x / XY_STEPS, m.y / XY_STEPS
+        if self.has_valve and (self._ax != hx or self._ay != hy):  # a travel
+            self._row(self._ax, self._ay, hx, hy, m.nozzle_height() / Z_STEPS, 0.0, 0.0, -1,
+                      -1)
+        self._ax, self._ay = hx, hy  # a new path's plastic is laid from where it opened
         self.path_of[n] = len(self.paths)
         self.paths.append(Path(len(self.paths), n, m.nozzle_height() / Z_STEPS,
                                (m.x / XY_STEPS, m.y / XY_STEPS), judged=self.judging))
@@ -368,18 +377,14 @@ class Deposition:
             path.closed = True
         self.path_of[n] = -1
 
-    def _row(self, start: tuple[float, float], end: tuple[float, float], z: float,
+    def _row(self, x0: float, y0: float, x1: float, y1: float, z: float,
              dep: float, drv: float, nozzle: int, path: int) -> None:
-        x0, y0 = start
-        x1, y1 = end
         if self._has_last and self._lpath == path and self._lnozzle == nozzle \
                 and self._lx1 == x0 and self._ly1 == y0 and abs(self._lz - z) <= SAME_Z_MM:
             px, py = self._lx0, self._ly0
             if _straight(px, py, x0, y0, x1, y1) and \
                     _alike(self._ldep, self._ldrv, dep, drv) and \
-                    dep <= 4.0 * self._ldep * math.hypot(x1 - x0, y1 - y0) \
-                    / max(math.hypot(x0 - px, y0 - py), 1e-9) + BLOB_MM3:
-                # (and no lump: a stretch laying far more per mm than the row stays apart)
+                    _no_lump(self._ldep, dep, px, py, x0, y0, x1, y1):
                 self._lx1, self._ly1 = x1, y1
                 self._ldep += dep
                 self._ldrv += drv
@@ -395,7 +400,7 @@ class Deposition:
         if not self._has_last:
             return
         self._has_last = False
-        c = self._columns  # (one append each: no tuple of the row, no lookups by name)
+        c = self._staged  # (one append each: no tuple of the row, no lookups by name)
         c[0].append(self._lx0)
         c[1].append(self._ly0)
         c[2].append(self._lx1)
@@ -405,7 +410,18 @@ class Deposition:
         c[6].append(self._ldrv)
         c[7].append(float(self._lnozzle))
         c[8].append(float(self._lpath))
-        if self.spill is not None and len(c[0]) >= SPILL_ROWS:
+        if len(c[0]) >= STAGED_ROWS:
+            self._settle()
+
+    def _settle(self) -> None:
+        """The staged rows into the columns, then the older rows to the spill file once
+        there are enough of them."""
+        staged, columns = self._staged, self._columns
+        if staged[0]:
+            for k in range(len(columns)):
+                columns[k].fromlist(staged[k])
+                staged[k].clear()
+        if self.spill is not None and len(columns[0]) >= SPILL_ROWS:
             self._spill()
 
     def _last(self) -> tuple[float, ...]:
@@ -428,6 +444,7 @@ class Deposition:
     def iter_rows(self) -> Iterator[tuple[float, ...]]:
         """Every row, oldest first: (x0, y0, x1, y1, z, deposited, driven, nozzle,
         path)."""
+        self._settle()
         if self.spill is not None and self.spilled:
             with open(self.spill, "rb") as f:
                 while header := f.read(8):
@@ -455,7 +472,37 @@ def _straight(px: float, py: float, jx: float, jy: float, qx: float, qy: float) 
     dx, dy = qx - px, qy - py
     if (jx - px) * dx + (jy - py) * dy <= 0.0 or (qx - jx) * dx + (qy - jy) * dy < 0.0:
         return False
-    return abs((jx - px) * dy - (jy - py) * dx) <= STRAIGHT_MM * math.hypot(dx, dy)
+    off = abs((jx - px) * dy - (jy - py) * dx)
+    h = _near_hypot(dx, dy)
+    bound = STRAIGHT_MM * h
+    if h >= 0.0 and abs(off - bound) > NEAR * bound:
+        return off <= bound
+    return off <= STRAIGHT_MM * math.hypot(dx, dy)
+
+
+def _no_lump(dep0: float, dep1: float, px: float, py: float, jx: float, jy: float,
+             qx: float, qy: float) -> bool:
+    """Whether a stretch from j to q laying dep1 is no lump after the row from p to j
+    that laid dep0: it lays at most four times as much per mm, give or take a blob."""
+    h1 = _near_hypot(qx - jx, qy - jy)
+    h0 = _near_hypot(jx - px, jy - py)
+    if dep0 >= 0.0 and h1 >= 0.0 and h0 >= 0.0:  # a sum of terms of one sign
+        bound = 4.0 * dep0 * h1 / max(h0, 1e-9) + BLOB_MM3
+        if abs(dep1 - bound) > NEAR * bound:
+            return dep1 <= bound
+    return dep1 <= 4.0 * dep0 * math.hypot(qx - jx, qy - jy) \
+        / max(math.hypot(jx - px, jy - py), 1e-9) + BLOB_MM3
+
+
+def _near_hypot(dx: float, dy: float) -> float:
+    """math.hypot(dx, dy) to a few parts in 10^16: the square root of the sum of the
+    squares (compiled, native, where math.hypot is a generic call); -1.0 where a square
+    leaves the range of doubles and it could be further off. A comparison with it
+    decides as math.hypot would unless the two sides are within NEAR of each other."""
+    sq = dx * dx + dy * dy
+    if (sq < 1e-200 and (dx != 0.0 or dy != 0.0)) or sq > 1e300:
+        return -1.0
+    return math.sqrt(sq)
 
 
 def _alike(dep0: float, drv0: float, dep1: float, drv1: float) -> bool:
