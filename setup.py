@@ -38,6 +38,7 @@ NATIVE_MODULES = [
     "src/robox/gcode/valve.py",
     "src/robox/gcode/text.py",
     "src/robox/sim/watch.py",
+    "src/robox/sim/quality.py",
     "src/robox/packed.py",
 ]
 

@@ -37,6 +37,7 @@ MODULES = (
     "robox.gcode.valve",
     "robox.gcode.text",
     "robox.sim.watch",
+    "robox.sim.quality",
     "robox.packed",
 )
 

@@ -1,6 +1,11 @@
 """Which job line a place in the deposition record comes from (quality.find_lines)."""
 
+import math
 import random
+import re
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from robox.sim.quality import Place, find_lines
 
@@ -41,8 +46,8 @@ def ends(job: bytes) -> list[tuple[int, float, float, float]]:
 
 def nearest(job: bytes, x: float, y: float, z: float) -> int:
     """The first of the moves whose end is nearest (height weighed 100 times)."""
-    return min(ends(job), key=lambda e: (e[1] - x) ** 2 + (e[2] - y) ** 2
-               + 100.0 * (e[3] - z) ** 2)[0]
+    return min(ends(job), key=lambda e: (e[1] - x) * (e[1] - x) + (e[2] - y) * (e[2] - y)
+               + 100.0 * ((e[3] - z) * (e[3] - z)))[0]
 
 
 def test_a_place_gets_the_first_of_the_nearest_moves(tmp_path):
@@ -70,3 +75,77 @@ def test_a_job_without_moves_leaves_places_unplaced(tmp_path):
     place = Place("blob", 1, 1.0, 1.0, 0.2, 0.1)
     find_lines(job, [place])
     assert place.line is None
+
+
+# The reading a job's moves are found by, as two regular expressions over text read as
+# latin-1 with universal newlines: a move is G0 or G1 after any blanks and before no
+# digit (up to a `;`), its X, Y and Z words a letter, blanks and a decimal number; G90
+# and G91 are the first three characters after the blanks.
+_MOVE = re.compile(r"^\s*G[01](?!\d)", re.I)
+_WORD = re.compile(r"([XYZ])\s*([-+]?\d*\.?\d+)", re.I)
+
+
+def moves_as_expressions_read(job: bytes) -> list[tuple[int, float, float, float]]:
+    out, x, y, z, relative = [], 0.0, 0.0, 0.0, False
+    text = job.decode("latin-1").replace("\r\n", "\n").replace("\r", "\n")
+    for number, raw in enumerate(text.split("\n"), 1):
+        line = raw.split(";", 1)[0]
+        head = line.lstrip()[:3].upper()
+        if head in ("G90", "G91"):
+            relative = head == "G91"
+        if not _MOVE.match(line):
+            continue
+        for letter, value in _WORD.findall(line):
+            v, letter = float(value), letter.upper()
+            if letter == "X":
+                x = x + v if relative else v
+            elif letter == "Y":
+                y = y + v if relative else v
+            else:
+                z = z + v if relative else v
+        out.append((number, x, y, z))
+    return out
+
+
+_PIECES = ["G1", "G0", "g1", "G01", "G10", "G90", "G91", "g91", "G9", "G910", " ", "\t",
+           "\x85", "\xa0", "\x1c", "X", "x", "Y", "Z", "z", "E", " X1", " Y-2.5", "Z.3",
+           "X+.5", "X12.", "X.", "X-", "X1e3", "X1.2.3", "X 7", "X\t-0.25", ";", "(c)",
+           "M104", "1", "2.5", "-", "+", ".", "X1234567890123456.5", "Y0.000000000000001"]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.lists(st.sampled_from(_PIECES), max_size=8).map("".join),
+                min_size=1, max_size=40),
+       st.sampled_from(["\n", "\r\n", "\r"]),
+       st.lists(st.tuples(st.floats(-5, 20), st.floats(-5, 20), st.floats(0, 5)),
+                min_size=1, max_size=5))
+def test_moves_are_read_as_the_expressions_read_them(tmp_path_factory, lines, newline,
+                                                     where):
+    """Odd lines (blanks beyond ASCII, numbers cut short, words run together, codes
+    that only begin like a move) are read byte by byte as the two expressions read
+    them: every place gets the line a scan of the moves they find gives."""
+    job = "\n".join(lines).replace("\n", newline).encode("latin-1")
+    path = tmp_path_factory.mktemp("job") / "job.gcode"
+    path.write_bytes(job)
+    places = [Place("blob", 1, x, y, z, 0.1) for x, y, z in where]
+    find_lines(path, places)
+    ends = moves_as_expressions_read(job)
+    for place in places:
+        if not ends:
+            assert place.line is None
+            continue
+        dist = [(e[1] - place.x) * (e[1] - place.x) + (e[2] - place.y) * (e[2] - place.y)
+                + 100.0 * ((e[3] - place.z) * (e[3] - place.z)) for e in ends]
+        assert place.line == ends[dist.index(min(dist))][0]
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.one_of(st.floats(allow_nan=False), st.integers(-10**6, 10**6).map(lambda n: n / 200),
+                 st.sampled_from([0.0, -0.0, 0.005, -0.005, 2.675, 1.005, 1e-9, -1e-9])))
+def test_heights_are_rounded_as_round_rounds_them(value):
+    """A layer's height is round(z, 2), halves and the sign of zero as round() has them
+    (the record's heights are rounded natively where that cannot differ)."""
+    from robox.sim.quality import _round2
+
+    got, expected = _round2(value), round(value, 2)
+    assert got == expected and math.copysign(1.0, got) == math.copysign(1.0, expected)

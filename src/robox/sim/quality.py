@@ -22,11 +22,12 @@ import bisect
 import heapq
 import math
 import os
-import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from robox.formats.float8 import short_decimal
 from robox.hardware.deposition import BLOB_MM3, STANDING_MM, Deposition
+from robox.packed import vec
 
 STARVED = 0.8
 LAYER_MERGE_MM = 0.04
@@ -80,7 +81,7 @@ class Quality:
         return -EDGE_MM <= x <= self.bed[0] + EDGE_MM and -EDGE_MM <= y <= self.bed[1] + EDGE_MM
 
     def _layers(self) -> list[float]:
-        heights = sorted({round(row[4], 2) for row in self.rows()
+        heights = sorted({_round2(row[4]) for row in self.rows()
                           if row[5] > 0.0 and self.on_plate(row[2], row[3])})
         layers: list[float] = []
         for z in heights:
@@ -155,8 +156,25 @@ class Quality:
         return figures, places
 
 
-_MOVE = re.compile(r"^\s*G[01](?!\d)", re.I)
-_WORD = re.compile(r"([XYZ])\s*([-+]?\d*\.?\d+)", re.I)
+def _round2(value: float) -> float:
+    """round(value, 2), worked out natively (compiled, round() is a generic call) where
+    value * 100 is far enough from a half for its rounding not to matter: the whole
+    number nearest to it, over 100, is then the double nearest the two-place decimal,
+    as round() gives; round() itself otherwise."""
+    y = value * 100.0
+    if abs(y) < 1e9:
+        whole = math.floor(y)
+        frac = y - whole
+        if abs(frac - 0.5) > 1e-6:
+            nearest = whole + 1.0 if frac > 0.5 else whole
+            return nearest / 100.0 if nearest != 0.0 else math.copysign(0.0, value)
+    return round(value, 2)
+
+
+def _blank(c: int) -> bool:
+    """Whether a byte of a job read as latin-1 is white space to str.isspace() (and so to
+    a regular expression's \\s)."""
+    return c == 32 or 9 <= c <= 13 or 28 <= c <= 31 or c == 133 or c == 160
 
 
 def find_lines(job: str | os.PathLike, places: list[Place]) -> None:
@@ -165,49 +183,96 @@ def find_lines(job: str | os.PathLike, places: list[Place]) -> None:
     measured against a place only where its height alone leaves it a chance: the
     heights' part is worked out once per height the job moves to (a job keeps one for
     a layer's moves), and the places it already puts further than their nearest so
-    far are passed by."""
+    far are passed by.
+
+    A line is read byte by byte (compiled, native): up to a `;`, a move is a G0 or G1
+    (either case) after any blanks and before no digit; its X, Y and Z (either case)
+    are each a letter, blanks, and a decimal number (a sign, digits, and a point only
+    with digits after it); G90 and G91 set absolute and relative."""
     if not places:
         return
     n = len(places)
-    px = [p.x for p in places]
-    py = [p.y for p in places]
-    pz = [p.z for p in places]
-    best = [math.inf] * n
-    floors = [0.0] * n  # 100 (z - the place's z)^2 at the height the moves are at
+    px = vec[float]([p.x for p in places])
+    py = vec[float]([p.y for p in places])
+    pz = vec[float]([p.z for p in places])
+    best = vec[float]([math.inf] * n)
+    floors = vec[float]([0.0] * n)  # 100 (z - the place's z)^2 at the moves' height
     floors_z = math.nan
     x = y = z = 0.0
     relative = False
-    # (text with universal newlines: a job's lines may end in CR, CR LF or LF)
+    number = 0
+    # (text with universal newlines: a job's lines may end in CR, CR LF or LF; each
+    # line's bytes as they were, latin-1 being one byte a character)
     with open(job, encoding="latin-1", newline=None) as f:
-        for number, raw in enumerate(f, 1):
-            line = raw.split(";", 1)[0] if ";" in raw else raw
-            head = line.lstrip()[:3].upper()
-            if head == "G91":
-                relative = True
-            elif head == "G90":
-                relative = False
-            if not _MOVE.match(line):
+        for raw in f:
+            number += 1
+            text = raw.encode("latin-1")
+            end = len(text)
+            for k in range(end):
+                if text[k] == 59:  # ;
+                    end = k
+                    break
+            i = 0
+            while i < end and _blank(text[i]):
+                i += 1
+            if i + 1 >= end or text[i] | 0x20 != 0x67:  # G
                 continue
-            for letter, value in _WORD.findall(line):
-                v = float(value)
-                letter = letter.upper()
-                if letter == "X":
+            code = text[i + 1]
+            after = text[i + 2] if i + 2 < end else 0
+            if code == 0x39:  # G9: G90, G91 (whatever follows)
+                if after == 0x31:
+                    relative = True
+                elif after == 0x30:
+                    relative = False
+                continue
+            if (code != 0x30 and code != 0x31) or 48 <= after <= 57:
+                continue  # not G0 or G1
+            j = 0
+            while j < end:
+                letter = text[j] | 0x20
+                j += 1
+                if letter < 0x78 or letter > 0x7A:  # x, y, z
+                    continue
+                k = j
+                while k < end and _blank(text[k]):
+                    k += 1
+                first = k
+                if k < end and (text[k] == 43 or text[k] == 45):  # + -
+                    k += 1
+                while k < end and 48 <= text[k] <= 57:
+                    k += 1
+                digits = k > first and 48 <= text[k - 1] <= 57
+                if k + 1 < end and text[k] == 46 and 48 <= text[k + 1] <= 57:  # .digits
+                    k += 2
+                    while k < end and 48 <= text[k] <= 57:
+                        k += 1
+                    digits = True
+                if not digits:
+                    continue
+                v = short_decimal(text, first)
+                if v != v:  # (not a short one: float() reads what was found)
+                    v = float(text[first:k])
+                if letter == 0x78:
                     x = x + v if relative else v
-                elif letter == "Y":
+                elif letter == 0x79:
                     y = y + v if relative else v
                 else:
                     z = z + v if relative else v
+                j = k
             if z != floors_z:
-                floors = [100.0 * (z - h) ** 2 for h in pz]
+                for h in range(n):
+                    dz = z - pz[h]  # (products, not ** 2: compiled, a power is generic)
+                    floors[h] = 100.0 * (dz * dz)
                 floors_z = z
-            for i in range(n):
-                floor = floors[i]
-                if floor > best[i]:
+            for h in range(n):
+                floor = floors[h]
+                if floor > best[h]:
                     continue  # (the whole distance is at least this)
-                d = (x - px[i]) ** 2 + (y - py[i]) ** 2 + floor
-                if d < best[i]:
-                    best[i] = d
-                    places[i].line = number
+                dx, dy = x - px[h], y - py[h]
+                d = dx * dx + dy * dy + floor
+                if d < best[h]:
+                    best[h] = d
+                    places[h].line = number
 
 
 def plot(quality: Quality, target: str | os.PathLike, layer: int | None,
