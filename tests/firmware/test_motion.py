@@ -6,7 +6,7 @@ import math
 import struct
 
 import pytest
-from hypothesis import example, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from robox.firmware import motion as motion_module
@@ -714,3 +714,40 @@ def test_the_per_axis_copies_follow_every_change_of_the_parameters(wire):
     saved = seen()
     assert [copy for copy, _ in saved] == [values for _, values in saved]
     assert saved[0] == changed[0]
+
+
+def weighted_z(points, x: float, y: float, z_dest: float, washout: float) -> float:
+    """position.c's bed correction at (x, y), in C float arithmetic: the points' heights
+    weighed by their inverse squared distance, faded out by the washout over Z."""
+    total = acc = 0.0
+    for px, py, pz in points:
+        dx, dy = f32(px - x), f32(py - y)
+        v = f32(f32(dx * dx) + f32(dy * dy))
+        if v < 1.0e-10:
+            return pz
+        v = f32(1.0 / v)
+        total = f32(total + v)
+        acc = f32(acc + f32(v * pz))
+    acc = f32(acc / total)
+    return f32(acc * f32(max(0.0, min(1.0, 1.0 - f32(z_dest * washout)))))
+
+
+@settings(max_examples=200, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])  # (all set here)
+@given(st.lists(st.tuples(st.floats(0, 210), st.floats(0, 150),
+                          st.sampled_from([0.0, 0.0, -0.0, 0.05, -0.1])), min_size=1,
+                max_size=3),
+       st.floats(-50, 250), st.floats(-50, 200), st.floats(0, 5))
+@example([(10.0, 20.0, -0.0), (50.0, 20.0, 0.0)], 10.0, 20.0, 0.2)  # at a -0.0 point
+def test_the_bed_correction_weighs_the_levelling_points(wire, points, x, y, z):
+    """The correction is the weighted mean of the points' heights in C float arithmetic
+    (at a point: that point's height, its sign too), faded by the washout."""
+    position = wire.fw.position
+    points = [(f32(px), f32(py), pz) for px, py, pz in points]
+    position.levelling = points
+    position.z_washout = 0.5
+    at_x = f32(f32(position.position[0] + x) - position.tool_offset[0])
+    at_y = f32(f32(position.position[1] + y) - position.tool_offset[1])
+    got = position.z_correction(x, y, z)
+    expected = weighted_z(points, at_x, at_y, z, 0.5)
+    assert got == expected and math.copysign(1.0, got) == math.copysign(1.0, expected)
