@@ -63,7 +63,14 @@ class Quality:
         self.paths = [p for p in dep.paths if p.judged]
         self.unjudged = {p.number for p in dep.paths if not p.judged}
         self.offsets = offsets
-        self.layers = self._layers()
+        # one pass over the record: the figures, and the heights the layers come from (a
+        # place's layer is given once they are known)
+        heights: set[float] = set()
+        self._figures, self._worst = self._judge(heights)
+        self.layers = _merged(sorted(heights))
+        self._figures["layers"] = len(self.layers)
+        for place in self._worst:
+            place.layer = self.layer_of(place.z)
 
     def rows(self) -> Iterator[tuple[float, float, float, float, float, float, float, int,
                                      int]]:
@@ -80,20 +87,17 @@ class Quality:
     def on_plate(self, x: float, y: float) -> bool:
         return -EDGE_MM <= x <= self.bed[0] + EDGE_MM and -EDGE_MM <= y <= self.bed[1] + EDGE_MM
 
-    def _layers(self) -> list[float]:
-        heights = sorted({_round2(row[4]) for row in self.rows()
-                          if row[5] > 0.0 and self.on_plate(row[2], row[3])})
-        layers: list[float] = []
-        for z in heights:
-            if not layers or z - layers[-1] > LAYER_MERGE_MM:
-                layers.append(z)
-        return layers
-
     def layer_of(self, z: float) -> int:
         """The layer (from 1) a height belongs to; 0 below the first."""
         return bisect.bisect_right(self.layers, z + LAYER_MERGE_MM)
 
     def figures(self) -> tuple[dict, list[Place]]:
+        """The figures, and the worst places (at most WORST, the worst first)."""
+        return self._figures, self._worst
+
+    def _judge(self, heights: set[float]) -> tuple[dict, list[Place]]:
+        """The figures and the worst places (their layers not yet given), the plastic's
+        heights rounded into `heights` on the way."""
         blob = starved_mm = deposited = driven = 0.0
         blobs = 0
         worst: list[tuple[float, int, Place]] = []  # a heap of the worst places
@@ -113,7 +117,10 @@ class Quality:
         run: Place | None = None  # the starved stretch being followed
         last_path = -2
         for x0, y0, x1, y1, z, dep, drv, _n, path in self.rows():
-            if path < 0 or not self.on_plate(x1, y1):
+            on_plate = self.on_plate(x1, y1)
+            if dep > 0.0 and on_plate:
+                heights.add(_round2(z))
+            if path < 0 or not on_plate:
                 continue
             deposited += dep
             driven += drv
@@ -122,7 +129,7 @@ class Quality:
                 if dep >= BLOB_MM3:
                     blob += dep
                     blobs += 1
-                    keep(Place("blob", self.layer_of(z), x1, y1, z, dep))
+                    keep(Place("blob", 0, x1, y1, z, dep))
                 continue
             if dep < STARVED * drv:
                 starved_mm += length
@@ -133,7 +140,7 @@ class Quality:
                 else:
                     if run is not None:
                         keep(run)
-                    run = Place("starved", self.layer_of(z), x1, y1, z, drv - dep, length)
+                    run = Place("starved", 0, x1, y1, z, drv - dep, length)
                 last_path = path
             elif run is not None:
                 keep(run)
@@ -146,7 +153,7 @@ class Quality:
             p.start[0] - self.offsets[p.nozzle][0], p.start[1] - self.offsets[p.nozzle][1]))
         places = [place for _, _, place in sorted(worst, key=lambda item: (-item[0], -item[1]))]
         figures = {
-            "path_ends": ends, "opens": opens, "layers": len(self.layers),
+            "path_ends": ends, "opens": opens, "layers": 0,  # (once they are known)
             "deposited_mm3": round(deposited, 2), "driven_mm3": round(driven, 2),
             "blob_mm3": round(blob, 3), "blobs": blobs,
             "starved_mm": round(starved_mm, 2),
@@ -154,6 +161,15 @@ class Quality:
             "starved_mm_per_open": round(starved_mm / opens, 4) if opens else 0.0,
         }
         return figures, places
+
+
+def _merged(heights: list[float]) -> list[float]:
+    """Layers from sorted heights: those within LAYER_MERGE_MM of a layer are in it."""
+    layers: list[float] = []
+    for z in heights:
+        if not layers or z - layers[-1] > LAYER_MERGE_MM:
+            layers.append(z)
+    return layers
 
 
 def _round2(value: float) -> float:
