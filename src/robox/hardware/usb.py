@@ -139,3 +139,17 @@ class UsbLink:
         self.replies += 1
         self.bytes_out += len(reply)
         return True
+
+
+class ReplyWaiting:
+    """A condition for Firmware.run_until: a reply waits for the host (with `or_gone`, or
+    the link is gone). A compiled object, where a lambda would run interpreted after
+    every pass."""
+
+    def __init__(self, link: UsbLink, or_gone: bool = False):
+        self.link = link
+        self.or_gone = or_gone
+
+    def __call__(self) -> bool:
+        link = self.link
+        return len(link._tx) > 0 or (self.or_gone and not link.connected)

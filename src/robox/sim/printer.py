@@ -39,7 +39,7 @@ from robox.hardware.flash import Flash
 from robox.hardware.machine import NOZZLE_MM, STEPS_PER_MM, D, E, Z
 from robox.hardware.sdcard import SdCard
 from robox.hardware.storage import FileStorage, MemoryStorage
-from robox.hardware.usb import PACKET_SIZE
+from robox.hardware.usb import PACKET_SIZE, ReplyWaiting
 from robox.locks import DirectoryLock
 from robox.offline import sdcard as card_images
 from robox.sim import images
@@ -355,7 +355,7 @@ class VirtualPrinter:
         usb.host_write(frame)
         reply = b""
         while True:
-            self.run_until(lambda: usb.reply_waiting > 0, timeout)
+            self.run_until(ReplyWaiting(usb), timeout)
             if not usb.reply_waiting:
                 raise RoboxError(f"the virtual printer did not answer {frame[:1].hex()} "
                                  f"(got {reply!r})")

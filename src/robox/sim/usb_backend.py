@@ -16,6 +16,7 @@ import errno
 import usb.backend
 import usb.core
 
+from robox.hardware.usb import ReplyWaiting
 from robox.sim.printer import VirtualPrinter
 
 VENDOR_ID = 0x16D0
@@ -185,8 +186,7 @@ class VirtualRoboxBackend(usb.backend.IBackend):
         if not usb_link.reply_waiting:
             seconds = (timeout or 1000) / 1000.0
             # a USB host sees a reply as soon as it is sent, even mid-line
-            self.printer.run_until(lambda: usb_link.reply_waiting > 0 or
-                                   not usb_link.connected, seconds)
+            self.printer.run_until(ReplyWaiting(usb_link, or_gone=True), seconds)
             self._check_connected()
         if not usb_link.reply_waiting:
             raise usb.core.USBTimeoutError("Operation timed out", -7, errno.ETIMEDOUT)
