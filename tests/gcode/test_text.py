@@ -1,11 +1,12 @@
-"""The words of a G-code line, against the rule written as a regular expression."""
+"""The words of a G-code line, against the rule written as a regular expression; the
+numbers a job writes, against printf."""
 
 import re
 
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from robox.gcode.text import words
+from robox.gcode.text import number, words
 
 # a word: any character but a blank, then everything up to the next letter or blank
 WORD = re.compile(r"(\S)([^\sA-Z]*)")
@@ -38,3 +39,18 @@ def test_words_of_slicer_lines():
     assert words(b"G1 X10.5 Y-3 E.02") == ("G1", {"X": "10.5", "Y": "-3", "E": ".02"})
     assert words(b"G1X10E.5") == ("G1", {"X": "10", "E": ".5"})
     assert words(b"") == ("", {})
+
+
+@settings(max_examples=1000, deadline=None)
+@given(st.one_of(st.floats(-20000, 20000), st.floats(allow_nan=True, allow_infinity=True),
+                 st.integers(-2**24, 2**24).map(lambda n: n / 2**10),  # halves, exactly
+                 st.integers(-10**9, 10**9).map(lambda n: n / 100000)))
+@example(0.015625)  # 1562.5 hundred-thousandths: a tie, to even (0.01562)
+@example(-0.000004)  # rounds to "-0.00000": "0"
+@example(9999.999995)
+def test_a_number_is_written_as_printf_writes_it_to_5_places(value):
+    """A job's number is printf's "%.5f" with the trailing zeros and point cut off."""
+    text = f"{value:.5f}"
+    if "." in text:
+        text = text.rstrip("0").rstrip(".")
+    assert number(value) == (b"0" if text in ("-0", "") else text.encode())
