@@ -42,8 +42,8 @@ delivers alike (the deposited share of what was driven within 5%) is merged into
 the record grows with the job's paths and turns, not with its microsteps; given a
 `spill` file, all but the newest rows go there, and memory stays flat in the job's size.
 The newest row, the one a stretch may still merge into, is held in plain attributes
-(read and merged natively when compiled); when the next row starts it goes to lists
-that join the columns `STAGED_ROWS` at a time, and at `finish()` or a read of the rows.
+(read and merged natively when compiled); when the next row starts it joins the
+columns, packed vectors of native floats (`rows` shows them by name).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Final
 
 from robox.formats.heads import E_FEED, HeadValves
-from robox.packed import i64, vec
+from robox.packed import append, i64, vec
 
 if TYPE_CHECKING:
     from robox.hardware.machine import Machine
@@ -94,8 +94,6 @@ INTERLEAVE: Final = 16
 SPILL_ROWS = 1 << 16
 #: Rows: x0, y0, x1, y1, z, deposited, driven, nozzle, path (-1: a travel).
 COLUMNS = ("x0", "y0", "x1", "y1", "z", "deposited", "driven", "nozzle", "path")
-#: Finished rows gathered in lists before they join the columns, a column at a time.
-STAGED_ROWS: Final = 1024
 
 
 @dataclass
@@ -116,7 +114,6 @@ class Deposition:
     valves: HeadValves
     diameters_mm: tuple[float, float]  # filament of feed E, feed D
     seats: tuple[float, float] = (0.0, 0.0)  # B where nozzle 0, nozzle 1 shut
-    rows: dict[str, array] = field(default_factory=lambda: {c: array("d") for c in COLUMNS})
     paths: list[Path] = field(default_factory=list)
     recording: bool = True  # False: the valve's and the pressure's physics, no record
     spill: str | None = None  # a file the older rows go to (None: all kept in memory)
@@ -159,11 +156,10 @@ class Deposition:
         self._lx0 = self._ly0 = self._lx1 = self._ly1 = self._lz = 0.0
         self._ldep = self._ldrv = 0.0
         self._lnozzle = self._lpath = 0
-        # the columns in COLUMNS' order (the same arrays: a spill empties them in place)
-        self._columns = [self.rows[name] for name in COLUMNS]
-        # finished rows on their way to the columns (compiled, a list's append is native,
-        # an array's a generic method call: 700 instructions a number)
-        self._staged: list[list[float]] = [[] for _ in COLUMNS]
+        # the columns, in COLUMNS' order: packed vectors in attributes of their own
+        # (compiled, an append is native; an array's is a generic method call, and a
+        # vector kept in a list or dict is boxed)
+        self._empty_columns()
         self._feed_axis = E_AXIS
         self._feed_mm3 = 0.0
         self.slipped_steps = 0
@@ -351,7 +347,27 @@ class Deposition:
         self.flush_feed()
         self._standing()
         self._keep_last()
-        self._settle()
+
+    def _empty_columns(self) -> None:
+        self._cx0 = vec[float]()
+        self._cy0 = vec[float]()
+        self._cx1 = vec[float]()
+        self._cy1 = vec[float]()
+        self._cz = vec[float]()
+        self._cdep = vec[float]()
+        self._cdrv = vec[float]()
+        self._cnozzle = vec[float]()
+        self._cpath = vec[float]()
+
+    @property
+    def rows(self) -> dict[str, vec[float]]:
+        """The rows in memory, a column for each name of COLUMNS (the newest apart until
+        finish(); with a spill file, those not yet spilled)."""
+        return dict(zip(COLUMNS, self._column_list(), strict=True))
+
+    def _column_list(self) -> list[vec[float]]:
+        return [self._cx0, self._cy0, self._cx1, self._cy1, self._cz, self._cdep,
+                self._cdrv, self._cnozzle, self._cpath]
 
     def _open_path(self, n: int) -> None:
         if not self.recording:
@@ -400,28 +416,16 @@ class Deposition:
         if not self._has_last:
             return
         self._has_last = False
-        c = self._staged  # (one append each: no tuple of the row, no lookups by name)
-        c[0].append(self._lx0)
-        c[1].append(self._ly0)
-        c[2].append(self._lx1)
-        c[3].append(self._ly1)
-        c[4].append(self._lz)
-        c[5].append(self._ldep)
-        c[6].append(self._ldrv)
-        c[7].append(float(self._lnozzle))
-        c[8].append(float(self._lpath))
-        if len(c[0]) >= STAGED_ROWS:
-            self._settle()
-
-    def _settle(self) -> None:
-        """The staged rows into the columns, then the older rows to the spill file once
-        there are enough of them."""
-        staged, columns = self._staged, self._columns
-        if staged[0]:
-            for k in range(len(columns)):
-                columns[k].fromlist(staged[k])
-                staged[k].clear()
-        if self.spill is not None and len(columns[0]) >= SPILL_ROWS:
+        self._cx0 = append(self._cx0, self._lx0)
+        self._cy0 = append(self._cy0, self._ly0)
+        self._cx1 = append(self._cx1, self._lx1)
+        self._cy1 = append(self._cy1, self._ly1)
+        self._cz = append(self._cz, self._lz)
+        self._cdep = append(self._cdep, self._ldep)
+        self._cdrv = append(self._cdrv, self._ldrv)
+        self._cnozzle = append(self._cnozzle, float(self._lnozzle))
+        self._cpath = append(self._cpath, float(self._lpath))
+        if self.spill is not None and len(self._cx0) >= SPILL_ROWS:
             self._spill()
 
     def _last(self) -> tuple[float, ...]:
@@ -431,20 +435,19 @@ class Deposition:
     def _spill(self) -> None:
         """The rows in the columns (all but the newest, held apart) to the spill file, a
         chunk of columns: memory stays flat in the job's size."""
-        r = self.rows
-        n = len(r["x0"])
+        columns = self._column_list()
+        n: int = len(columns[0])
         assert self.spill is not None
         with open(self.spill, "ab") as f:
             f.write(n.to_bytes(8, "little"))
-            for name in COLUMNS:
-                r[name][:n].tofile(f)
-                del r[name][:n]
+            for column in columns:
+                array("d", column).tofile(f)
+        self._empty_columns()
         self.spilled += n
 
     def iter_rows(self) -> Iterator[tuple[float, ...]]:
         """Every row, oldest first: (x0, y0, x1, y1, z, deposited, driven, nozzle,
         path)."""
-        self._settle()
         if self.spill is not None and self.spilled:
             with open(self.spill, "rb") as f:
                 while header := f.read(8):
@@ -455,8 +458,7 @@ class Deposition:
                         column.fromfile(f, n)
                         columns.append(column)
                     yield from zip(*columns, strict=True)
-        r = self.rows
-        yield from zip(*(r[name] for name in COLUMNS), strict=True)
+        yield from zip(*self._column_list(), strict=True)
         if self._has_last:
             yield self._last()
 
