@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from robox.formats.float8 import short_decimal
 from robox.hardware.deposition import BLOB_MM3, STANDING_MM, Deposition
-from robox.packed import vec
+from robox.packed import i64, vec
 
 STARVED = 0.8
 LAYER_MERGE_MM = 0.04
@@ -216,19 +216,21 @@ def find_lines(job: str | os.PathLike, places: list[Place]) -> None:
     floors_z = math.nan
     x = y = z = 0.0
     relative = False
-    number = 0
+    number: i64 = 0
     # (text with universal newlines: a job's lines may end in CR, CR LF or LF; each
     # line's bytes as they were, latin-1 being one byte a character)
     with open(job, encoding="latin-1", newline=None) as f:
         for raw in f:
             number += 1
             text = raw.encode("latin-1")
-            end = len(text)
+            # (native integers: compiled, an index's step is a plain add)
+            end: i64 = len(text)
+            k: i64
             for k in range(end):
                 if text[k] == 59:  # ;
                     end = k
                     break
-            i = 0
+            i: i64 = 0
             while i < end and _blank(text[i]):
                 i += 1
             if i + 1 >= end or text[i] | 0x20 != 0x67:  # G
@@ -243,7 +245,7 @@ def find_lines(job: str | os.PathLike, places: list[Place]) -> None:
                 continue
             if (code != 0x30 and code != 0x31) or 48 <= after <= 57:
                 continue  # not G0 or G1
-            j = 0
+            j: i64 = 0
             while j < end:
                 letter = text[j] | 0x20
                 j += 1
