@@ -24,6 +24,7 @@ from typing import Final
 from robox.firmware.carith import f32
 from robox.formats import float8
 from robox.formats.float8 import short_decimal, skip_blanks
+from robox.packed import i64
 
 LONG_MAX: Final = (1 << 63) - 1
 LONG_MIN: Final = -(1 << 63)
@@ -129,6 +130,7 @@ def strtof(text: bytes) -> float:
 def _find(text: bytes, c: int) -> int:
     """strchr: where byte `c` first is in `text`, -1 if nowhere (compiled, a native loop
     over a line's few dozen bytes costs less than calling bytes.find)."""
+    k: i64
     for k in range(len(text)):
         if text[k] == c:
             return k
@@ -143,8 +145,9 @@ class Line:
     def __init__(self, raw: bytes):
         # the first CR, LF, ';', '(' or NUL, byte by byte (compiled, a native loop: a
         # regular expression's character class costs several times as much here)
-        n = len(raw)
-        end = n
+        n: i64 = len(raw)  # (native integers: compiled, indexing is native)
+        end: i64 = n
+        k: i64
         for k in range(n):
             c = raw[k]
             if c < 60 and (c == 13 or c == 10 or c == 59 or c == 40 or c == 0):

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, Final
 from robox.firmware.carith import f32, to_ulong
 from robox.firmware.cline import Line, strtol
 from robox.formats.protocol import JOB_LINE_LIMIT, ErrorBit
+from robox.packed import i64
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
@@ -83,10 +84,11 @@ def line_length(buffer: bytes) -> int:
     """The firmware's get_gcode_line_length: 0 while the first line has no CR or LF
     (a NUL ends the string); otherwise its length with its terminator (CR LF or LF CR
     count once) and any blanks after it."""
-    # byte by byte (compiled, a native loop over the line's few dozen bytes, where a
-    # method call or a search of the whole buffer costs several times as much)
-    n = len(buffer)
-    i = 0
+    # byte by byte (compiled, a native loop over the line's few dozen bytes, native
+    # integers indexing it, where a method call or a search of the whole buffer costs
+    # several times as much)
+    n: i64 = len(buffer)
+    i: i64 = 0
     while i < n:
         c = buffer[i]
         if c == 13 or c == 10 or c == 0:  # the first CR, LF or NUL

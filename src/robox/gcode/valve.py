@@ -45,6 +45,7 @@ from typing import Final
 from robox.formats.float8 import short_decimal
 from robox.formats.heads import OPENS_BEFORE_RESELECT, PARTIAL_B_MINIMUM, HeadValves
 from robox.gcode.text import number
+from robox.packed import i64
 
 #: Lines the look-behind buffer holds before it writes out the oldest.
 MAX_BUFFER: Final = 4000
@@ -91,11 +92,11 @@ def _code(line: bytes) -> bytes:
     """The line's first word, upper-cased (b"" for none): line.split(None, 1)[0].upper()
     found in one native loop (compiled, the two method calls cost more than the rest of
     a line's look at it)."""
-    n = len(line)
-    i = 0
+    n: i64 = len(line)
+    i: i64 = 0
     while i < n and (line[i] == 32 or 9 <= line[i] <= 13):
         i += 1
-    j = i
+    j: i64 = i
     lower = False
     while j < n and not (line[j] == 32 or 9 <= line[j] <= 13):
         if 97 <= line[j] <= 122:
@@ -237,9 +238,10 @@ class ValveStage:
         # one pass over a job's own line (code, then words of a letter and its value,
         # one blank apart); the head is the code and the X, Y and Z words before any
         # other, a slice of the line where they come first
-        n = len(line)
-        i = 2
-        head_end = 2
+        n: i64 = len(line)  # (native integers: compiled, indexing is native)
+        i: i64 = 2
+        start: i64
+        head_end: i64 = 2
         tidy = True
         head_parts: list[bytes] = []
         while i < n:
