@@ -44,10 +44,12 @@ from pathlib import Path
 from typing import Final
 
 from robox.errors import UsageError
+from robox.formats.float8 import short_decimal
 from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT, head_kind, head_valves
 from robox.gcode import macros
 from robox.gcode.text import BOM, code_part, number, words
 from robox.gcode.valve import ValveStage
+from robox.packed import i64
 
 #: A single-material head's nozzle for each feature the slicers mark (;TYPE:), as
 #: AutoMaker's profiles printed them: walls, skirts, top surfaces, gap fill and support
@@ -244,11 +246,11 @@ _KINDS: Final = bytes(
 PlainMove = tuple[bytes, bytes, bytes | None, bytes | None]
 
 
-def _plain_number(raw: bytes, start: int, end: int) -> bool:
+def _plain_number(raw: bytes, start: i64, end: i64) -> bool:
     """Whether raw[start:end] (no blank, letter or `;` in it) is a number float() reads,
     or one of the empty forms _number() takes as 0; False may still be one (`1_0`),
     left to the general way."""
-    i = start
+    i: i64 = start
     if i < end and _KINDS[raw[i]] == _SIGN:
         i += 1
     digits = point = False
@@ -271,23 +273,35 @@ def _plain_move(raw: bytes) -> PlainMove | None:
     general way should read (and perhaps refuse): words run together or with letters
     in their values, a `(` comment, bytes beyond ASCII before the `;`, a B or D word, an
     X, Y or Z that is not a plain number."""
-    n = len(raw)
-    i = 0
+    # (native integers: compiled, indexing the line is native)
+    n: i64 = len(raw)
+    i: i64 = 0
     while i < n and _KINDS[raw[i]] == _BLANK:
         i += 1
     if i + 2 > n or raw[i] | 0x20 != 0x67 or (raw[i + 1] != 0x31 and raw[i + 1] != 0x30):
         return None  # neither G0 nor G1 (nor g0, g1)
-    first = i
+    first: i64 = i
     code = b"G1" if raw[i + 1] == 0x31 else b"G0"
     i += 2
     # Whether the head stands in the line as the job writes it (the code, then its X, Y
     # and Z words in that order, each after one space, before any other word), and
     # where it ends there: then it is a slice of the line.
     tidy = raw[first] == 0x47
-    last_axis = 0  # 1 X, 2 Y, 3 Z; 4 once another word came
-    head_end = i
+    last_axis: i64 = 0  # 1 X, 2 Y, 3 Z; 4 once another word came
+    head_end: i64 = i
     # where each word's value starts and ends (a later word of a letter replaces it)
-    x0 = x1 = y0 = y1 = z0 = z1 = e0 = e1 = f0 = f1 = -1
+    x0: i64 = -1
+    x1: i64 = -1
+    y0: i64 = -1
+    y1: i64 = -1
+    z0: i64 = -1
+    z1: i64 = -1
+    e0: i64 = -1
+    e1: i64 = -1
+    f0: i64 = -1
+    f1: i64 = -1
+    word_end: i64
+    start: i64
     while True:
         if i < n and _KINDS[raw[i]] < _BLANK:
             return None  # the code runs on (G10, G1X5: the general way)
@@ -351,6 +365,9 @@ def _move_number(text: bytes, what: str) -> float:
     """_number() of a move's word as _plain_move() gives it (bytes, no letters)."""
     if len(text) < 2 and text in (b"", b"+", b"-", b"."):
         return 0.0
+    plain = short_decimal(text, 0, True)  # (nearly every value: no generic float())
+    if plain == plain:
+        return plain
     try:
         value = float(text)
     except ValueError:
