@@ -5,6 +5,7 @@ results are worked out here, independently of the model's code."""
 import math
 import struct
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
@@ -717,19 +718,23 @@ def test_the_per_axis_copies_follow_every_change_of_the_parameters(wire):
 
 
 def weighted_z(points, x: float, y: float, z_dest: float, washout: float) -> float:
-    """position.c's bed correction at (x, y), in C float arithmetic: the points' heights
-    weighed by their inverse squared distance, faded out by the washout over Z."""
-    total = acc = 0.0
-    for px, py, pz in points:
-        dx, dy = f32(px - x), f32(py - y)
-        v = f32(f32(dx * dx) + f32(dy * dy))
-        if v < 1.0e-10:
-            return pz
-        v = f32(1.0 / v)
-        total = f32(total + v)
-        acc = f32(acc + f32(v * pz))
-    acc = f32(acc / total)
-    return f32(acc * f32(max(0.0, min(1.0, 1.0 - f32(z_dest * washout)))))
+    """position.c's bed correction at (x, y), worked out in numpy's float32 (each
+    operation rounded as C's float arithmetic rounds it): the points' heights weighed
+    by their inverse squared distance (at a point, that point's height), faded out by
+    the washout over Z."""
+    f = np.float32
+    p = np.array(points, dtype=np.float32).reshape(-1, 3)
+    off = p[:, :2] - np.array([x, y], dtype=np.float32)
+    near = off[:, 0] * off[:, 0] + off[:, 1] * off[:, 1]
+    on = np.flatnonzero(near < 1.0e-10)
+    if len(on):
+        return float(p[on[0], 2])
+    weights = f(1.0) / near
+    total, mean = f(0.0), f(0.0)
+    for w, h in zip(weights, p[:, 2], strict=True):  # in order, as the C sums them
+        total, mean = total + w, mean + w * h
+    fade = f(max(0.0, min(1.0, 1.0 - float(f(z_dest * washout)))))
+    return float((mean / total) * fade)
 
 
 @settings(max_examples=200, deadline=None,
@@ -743,7 +748,7 @@ def test_the_bed_correction_weighs_the_levelling_points(wire, points, x, y, z):
     """The correction is the weighted mean of the points' heights in C float arithmetic
     (at a point: that point's height, its sign too), faded by the washout."""
     position = wire.fw.position
-    points = [(f32(px), f32(py), pz) for px, py, pz in points]
+    points = [(f32(px), f32(py), f32(pz)) for px, py, pz in points]  # (C floats)
     position.levelling = points
     position.z_washout = 0.5
     at_x = f32(f32(position.position[0] + x) - position.tool_offset[0])
