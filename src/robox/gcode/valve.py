@@ -42,7 +42,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Final
 
-from robox.formats.float8 import short_decimal
+from robox.formats.float8 import short_decimal, skip_blanks
 from robox.formats.heads import OPENS_BEFORE_RESELECT, PARTIAL_B_MINIMUM, HeadValves
 from robox.gcode.text import number
 from robox.packed import i64
@@ -93,9 +93,7 @@ def _code(line: bytes) -> bytes:
     found in one native loop (compiled, the two method calls cost more than the rest of
     a line's look at it)."""
     n: i64 = len(line)
-    i: i64 = 0
-    while i < n and (line[i] == 32 or 9 <= line[i] <= 13):
-        i += 1
+    i: i64 = skip_blanks(line, 0)
     j: i64 = i
     lower = False
     while j < n and not (line[j] == 32 or 9 <= line[j] <= 13):

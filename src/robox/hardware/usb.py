@@ -152,4 +152,4 @@ class ReplyWaiting:
 
     def __call__(self) -> bool:
         link = self.link
-        return len(link._tx) > 0 or (self.or_gone and not link.connected)
+        return link.reply_waiting > 0 or (self.or_gone and not link.connected)
