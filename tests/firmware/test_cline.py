@@ -121,3 +121,25 @@ def test_strtod_examples(text, value, used):
     assert _c_call(_libc.strtod, text) == (value, used)  # the oracle agrees with the table
     got = strtod(text)
     assert _same_double(got[0], value) and got[1] == used
+
+
+_MOVE_BYTES = st.lists(st.sampled_from(list(b"XYZEDBFGxyzedbf0123456789.- \t;\x00\xc3\xa9")),
+                       max_size=40).map(bytes)
+
+
+@settings(max_examples=3000, deadline=None)
+@given(_MOVE_BYTES)
+def test_a_moves_letters_are_where_strchr_finds_them(raw):
+    line = Line(raw)
+    _libc.strchr.restype = ctypes.c_void_p
+    _libc.strchr.argtypes = [ctypes.c_char_p, ctypes.c_int]
+    buf = ctypes.create_string_buffer(line.text)
+    found = line.move_letters()
+    assert len(found) == 7
+    for slot, letter in enumerate(b"XYZEDBF"):
+        hit = _libc.strchr(buf, letter)
+        expected = -1 if hit is None else hit - ctypes.addressof(buf)
+        assert found[slot] == expected, (raw, chr(letter))
+        if expected >= 0:
+            c_value = struct_f32(_c_call(_libc.strtod, line.text[expected + 1:])[0])
+            assert _same_double(line.float_after(found[slot]), c_value), raw

@@ -24,7 +24,7 @@ from typing import Final
 from robox.firmware.carith import f32
 from robox.formats import float8
 from robox.formats.float8 import short_decimal, skip_blanks
-from robox.packed import i64
+from robox.packed import i64, vec
 
 LONG_MAX: Final = (1 << 63) - 1
 LONG_MIN: Final = -(1 << 63)
@@ -35,6 +35,9 @@ _HEX: Final = re.compile(rb"([+-]?)0[xX]((?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-
 _SPECIAL: Final = re.compile(rb"([+-]?)(inf(?:inity)?|nan(?:\([0-9A-Za-z_]*\))?)", re.IGNORECASE)
 _INT: Final = re.compile(rb"[+-]?\d+")
 _FLOAT32_MAX: Final = 3.4028234663852886e38
+MOVE_LETTERS: Final = b"XYZEDBF"  # the letters Line.move_letters finds, in its order
+# each byte's place in MOVE_LETTERS, plus one (0: none of them)
+_MOVE_SLOT: Final = bytes(MOVE_LETTERS.find(bytes((c,))) + 1 for c in range(256))
 
 
 float32 = f32  # `value` rounded to C float precision (overflow gives infinity, as C does)
@@ -168,10 +171,25 @@ class Line:
         return at >= 0 and _strtod_at(self.text, at + 1)[1] > 0
 
     def float(self, letter: str) -> float:
+        at = _find(self.text, ord(letter))
+        return 0.0 if at < 0 else self.float_after(at)
+
+    def move_letters(self) -> vec[i64]:
+        """Where G0/G1's letters X, Y, Z, E, D, B and F first are (strchr for each, in
+        that order), -1 where absent: one walk along the line for all seven, each then
+        read in place with float_after."""
+        found = vec[i64]([-1, -1, -1, -1, -1, -1, -1])
         text = self.text
-        at = _find(text, ord(letter))
-        if at < 0:
-            return 0.0
+        k: i64
+        for k in range(len(text)):
+            slot: i64 = _MOVE_SLOT[text[k]]
+            if slot and found[slot - 1] < 0:
+                found[slot - 1] = k
+        return found
+
+    def float_after(self, at: i64) -> builtins.float:  # `float` here is the method above
+        """get_float of the letter found at `at`: the number after it, a C float."""
+        text = self.text
         value = short_decimal(text, at + 1)
         if value != value:  # (NaN: not a short plain decimal)
             value = _strtod_at(text, at + 1)[0]

@@ -239,26 +239,31 @@ class Position:
         has_xyz = has_edb = False
         distance = 0.0
         dest = self.destination
+        # the letters found in one walk along the line, each read where it is
+        found = line.move_letters()  # X, Y, Z, E, D, B, F (cline.MOVE_LETTERS)
         for i in range(X, Z + 1):  # (ranges here: compiled, a tuple's iterator is generic)
-            c = AXES[i]
-            if line.has(c):
-                moves[i] = line.float(c) if self.relative else f32(line.float(c) - dest[i])
+            at = found[i]
+            if at >= 0:
+                value = line.float_after(at)
+                moves[i] = value if self.relative else f32(value - dest[i])
                 has_xyz = True
                 distance = f32(distance + f32(moves[i] * moves[i]))
         distance = f32(math.sqrt(distance))
         for n in range(2):
             i = E + n  # then D
-            c = AXES[i]
-            if line.has(c):
+            at = found[i]
+            if at >= 0:
                 area = f32(self.diameter[n] * self.diameter[n]) * math.pi / 4.0
-                moves[i] = f32(div(f32(line.float(c) * self.multiplier[n]), area))
+                moves[i] = f32(div(f32(line.float_after(at) * self.multiplier[n]), area))
                 self.feed_multiplier_select = n
                 has_edb = True
-        if line.has("B"):
-            moves[B] = f32(line.float("B") - dest[B])
+        at = found[B]
+        if at >= 0:
+            moves[B] = f32(line.float_after(at) - dest[B])
             has_edb = True
-        if line.has("F"):
-            self.feed_rate = f32(line.float("F") / 60.0)
+        at = found[6]  # F
+        if at >= 0:
+            self.feed_rate = f32(line.float_after(at) / 60.0)
         # (unsigned long) of the quotient saturates, so one past it wraps to no segment
         segments = (1 + to_ulong(distance / SEGMENT_MM)) & UINT_MAX
         if segments == 0:
