@@ -161,10 +161,12 @@ class Motion:
         self.queued_length: i64 = 0
         self.acc = vec[i64]([0] * 6)
         self.active = False
-        self.last_index = [0, 0]  # the interrupt's own copy; starts unknown (0)
+        # the interrupt's own copy of the wheels' levels; starts unknown (0)
+        self.last_index = vec[i64]([0, 0])
         self.next_tick = self.tick_of(fw.clock.now + TIMER_START_S) + IDLE_PERIOD
         self.last_tick = self.next_tick - IDLE_PERIOD
-        self.autoload_counter = [self.machine.index_wheel(E), self.machine.index_wheel(D)]
+        self.autoload_counter = vec[i64]([self.machine.index_wheel(E),
+                                          self.machine.index_wheel(D)])
         self.slip_error = [False, False]
         self.index_moved = [False, False]
         self.holdoff_since = fw.clock.now
@@ -253,16 +255,16 @@ class Motion:
         invert = self.fw.parameters.invert_switch
         acc = self.acc
         counters = self.autoload_counter
+        i: i64  # (native integers: compiled, the sums and indices below are native)
         for i in range(2):
-            axis = E + i  # then D
-            # (typed locals: compiled, the tests and the mask below are native)
+            axis: i64 = E + i  # then D
             level: int = invert[axis]
             if m.switch_pin(axis) == level:  # no filament
                 if now - self.holdoff_since < FILAMENT_HOLDOFF_S or not self.empty():
                     if counters[i]:
                         counters[i] = 0
                 else:
-                    counter: int = counters[i]
+                    counter: i64 = counters[i]
                     if m.index_wheel(axis) != (counter & 1):
                         counters[i] = counter + 1
                 if counters[i] >= FILAMENT_AUTOLOAD_THRESHOLD:
@@ -272,7 +274,8 @@ class Motion:
                 if held > 0xFFFF:
                     acc[axis] = held & 0xFFFF
                 continue
-            counters[i] = 0
+            if counters[i]:
+                counters[i] = 0
             until_slip = self.what == UNTIL_SLIP
             threshold = self._slip_threshold(i)
             if until_slip and self.filament_slip:
@@ -288,7 +291,7 @@ class Motion:
                 elif self.what == NORMAL:
                     self.slip_error[i] = True
 
-    def _slip_threshold(self, i: int) -> int:
+    def _slip_threshold(self, i: i64) -> i64:
         """The count (16.16, steps since the wheel's last edge) past which drive i's
         filament has slipped. Every pass asks, and its inputs (M909's threshold, M92's
         steps, the reel's multiplier) hardly ever change: the last answer for each
@@ -299,7 +302,7 @@ class Motion:
         spu: float = pa.steps_per_unit[E + i]
         multiplier = self.fw.position.filament_multiplier(i)
         memo = self._slip_inputs
-        k = 3 * i
+        k: i64 = 3 * i
         if memo[k] == threshold_mm and memo[k + 1] == spu and memo[k + 2] == multiplier:
             return self._slip_thresholds[i]
         temp = float32(float32(float32(spu * threshold_mm) * multiplier) * 65536.0)
@@ -310,9 +313,9 @@ class Motion:
         self._slip_thresholds[i] = answer
         return answer
 
-    def _slip_count(self, axis: int) -> int:
+    def _slip_count(self, axis: i64) -> i64:
         """The drive's accumulator read as a signed long: its magnitude."""
-        count: int = self.acc[axis]
+        count: i64 = self.acc[axis]
         if count & 0x80000000:
             count -= 1 << 32
         return -count if count < 0 else count
@@ -536,8 +539,9 @@ class Motion:
         if m.z_top_pin() != 1 or m.hand_busy():
             return False
         invert = self.fw.parameters.invert_switch
+        i: i64
         for i in range(2):
-            axis = E + i  # then D
+            axis: i64 = E + i  # then D
             if m.filament[axis] is None:
                 continue
             if m.switch_pin(axis) == invert[axis]:
@@ -749,8 +753,9 @@ class Motion:
 
     def _check_index_wheels(self) -> None:
         m = self.machine
+        i: i64
         for i in range(2):
-            axis = E + i  # then D
+            axis: i64 = E + i  # then D
             if m.index_wheel(axis) != self.last_index[i]:
                 self.last_index[i] ^= 1
                 self.acc[axis] &= 0xFFFF

@@ -63,7 +63,8 @@ ZA_X_MM: Final = -37.546
 ZB_X_MM: Final = 251.5
 Z_TOP_MM: Final = 95.0
 Z_TOP_STEPS: Final = Z_TOP_MM * STEPS_PER_MM[Z]  # where the Z-top switch closes
-INDEX_EDGE_STEPS: Final = 256
+INDEX_EDGE_SHIFT: Final = 8
+INDEX_EDGE_STEPS: Final = 1 << INDEX_EDGE_SHIFT  # the index wheel's level toggles this often
 SENSOR_MM: Final = 10.0  # filament sensor after the drive
 NOZZLE_MM: Final = 380.0  # drive to nozzle, through the Bowden tube
 MELT_C: Final = 150.0
@@ -264,8 +265,10 @@ class Machine:
 
     def filament_present(self, axis: int) -> bool:
         f = self.filament[axis]
-        sensor = SENSOR_STEPS[axis]
-        return f is not None and f.tail <= sensor <= f.tip
+        if f is None:
+            return False
+        sensor: i64 = self._sensor_steps[axis]
+        return f.tail <= sensor <= f.tip
 
     def actuated(self, axis: int) -> bool:
         """Whether the axis's switch (E, D: the filament sensor) is actuated."""
@@ -285,7 +288,9 @@ class Machine:
 
     def switch_pin(self, axis: int) -> int:
         """The input level: X/Y/Z/B switches read 1 when actuated, filament sensors 0."""
-        return int(self.actuated(axis)) ^ int(E <= axis <= D)  # (E, D: compiled, no tuple)
+        if E <= axis <= D and not self.stuck:  # (E, D: compiled, no tuple)
+            return 0 if self.filament_present(axis) else 1  # (each pass reads both)
+        return int(self.actuated(axis)) ^ int(E <= axis <= D)
 
     def z_top_pin(self) -> int:
         """The Z-top input reads 0 when actuated."""
@@ -294,7 +299,9 @@ class Machine:
         return int(self.nozzle_height() < Z_TOP_STEPS)
 
     def index_wheel(self, axis: int) -> int:
-        return int(self.wheel_base[axis] ^ bool((self.wheel_passed[axis] // INDEX_EDGE_STEPS) & 1))
+        # (a shift: compiled, a native one, where a floor division calls a function)
+        level: i64 = (self.wheel_passed[axis] >> INDEX_EDGE_SHIFT) & 1
+        return int(level) ^ 1 if self.wheel_base[axis] else int(level)
 
     def lid_pin(self) -> int:
         return int(self.lid_closed)
@@ -313,7 +320,7 @@ class Machine:
         edge that way is the nearest; NEVER where it cannot turn."""
         if self.filament[axis] is None or self.wheel_slipping[axis]:
             return NEVER
-        r = self.wheel_passed[axis] % INDEX_EDGE_STEPS
+        r: i64 = self.wheel_passed[axis] & (INDEX_EDGE_STEPS - 1)  # (its modulo, natively)
         return INDEX_EDGE_STEPS - r if forward else r + 1
 
     def _switch_margin(self, axis: int) -> int:
@@ -363,6 +370,8 @@ class Machine:
         self._heater_list = list(self.heaters.values())
         # and the two nozzles', read on every feed step (no lookups by name)
         self._nozzles = (self.heaters["nozzle0"], self.heaters["nozzle1"])
+        # where each path's filament sensor is (a packed vector: read natively)
+        self._sensor_steps = vec[i64](list(SENSOR_STEPS))
 
     def advance(self, seconds: float) -> None:
         for heater in self._heater_list:
