@@ -249,18 +249,18 @@ def test_the_queued_length_kept_is_the_queued_blocks_lengths_added_up():
     adding up the queued blocks' lengths gives."""
     w = fresh_wire()
     fw, motion = w.fw, w.fw.motion
-    run_pass = fw.run_pass
+    run_passes = fw.run_passes  # (what run_until and run_pass take every pass with)
     seen = []
 
-    def checked(step=None, passes=1):
-        run_pass(step, passes)
+    def checked(step, passes):
+        run_passes(step, passes)
         n, b, total = motion.queued(), motion.buffer_out, 0
         for _ in range(n):
             total += motion.block[b].length
             b = (b + 1) & motion_module.MASK
         seen.append((motion.queued_length, total))
 
-    fw.run_pass = checked
+    fw.run_passes = checked
     scripted_session(w)
     assert len(seen) > 300 and any(total for _, total in seen)
     assert all(kept == total for kept, total in seen)

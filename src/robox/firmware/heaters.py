@@ -86,9 +86,10 @@ class Controller:
         return UNLOAD_NOZZLE_TEMPERATURE
 
 
-def time_to_target(target: float, now: float, ambient: float, approach) -> float:
+def time_to_target(target: float, now: float, ambient: float,
+                   approach: tuple[float, float]) -> float:
     """Seconds to heat from `now` to `target`, on an exponential approach."""
-    final_delta, tconst = approach
+    final_delta, tconst = approach  # (typed: compiled, unpacked natively)
     v = final_delta + ambient - now
     if v <= 0.0:
         return FLT_MAX
@@ -248,7 +249,9 @@ class Heaters:
         self.fw.hw.machine.head_fan = self.head_fan_duty / 255.0
 
     def any_on(self) -> bool:
-        return any(c.mode for c in self.controllers())
+        # (the four by name: compiled, no tuple and no generator made on every pass)
+        return self.nozzle[0].mode != 0 or self.nozzle[1].mode != 0 or self.bed.mode != 0 \
+            or self.ambient.mode != 0
 
     def turn_off(self) -> None:
         self.timing_pause = False

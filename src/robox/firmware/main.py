@@ -13,6 +13,7 @@ passes in between are counted (docs/firmware-model.md, "The loop").
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Final
@@ -169,13 +170,15 @@ class Firmware:
         command = self.command
         line_ready = command.line is not None and (command.waiting is None
                                                    or command.waiting.next_pass())
-        return bool((usb.received and usb.received > command.inert_bytes()
-                     and not command.deaf) or line_ready
-                    or (self._usb_coming() and self.job.running
-                        and not self._only_motion_awaited())
-                    or self.heaters.conversion_ready
-                    or command.pending_after_reply or self.job.runnable()
-                    or self.reset_requested or self.hours.due())
+        # (comparisons and bools throughout: compiled, nothing is boxed to be tested)
+        received = usb.received
+        return ((received > 0 and received > command.inert_bytes() and not command.deaf)
+                or line_ready
+                or (self._usb_coming() and self.job.running
+                    and not self._only_motion_awaited())
+                or self.heaters.conversion_ready
+                or command.pending_after_reply is not None or self.job.runnable()
+                or self.reset_requested or self.hours.due())
 
     def _only_motion_awaited(self) -> bool:
         """Motion runs and all that waits is a job line waiting on it: room in the queue
@@ -195,7 +198,13 @@ class Firmware:
 
     def plan(self, limit: float | None = None, skip: bool = True) -> tuple[float, int]:
         """The next pass: (step, n) moves the clock on n steps before it (n > 1 only with
-        `skip`: passes in which nothing would happen are skipped).
+        `skip`: passes in which nothing would happen are skipped); see `passes_planned`."""
+        return PASS_S, self.passes_planned(math.inf if limit is None else limit, skip)
+
+    def passes_planned(self, limit: float, skip: bool = True) -> i64:
+        """`plan()`'s n, each step PASS_S, the clock moving no further than `limit`
+        seconds (infinite: no limit). (Native arguments and answer: compiled, the loop's
+        calls box nothing.)
 
         While motion runs the firmware spins pass by pass; when all that waits is a line
         waiting for room in the motion queue (or for motion to end), the step interrupts
@@ -208,25 +217,26 @@ class Firmware:
         light = stepping = False
         self._may_step = False
         if self._busy_apart_from_light():
-            return PASS_S, 1
+            return 1
         if self._light_work():
             if not self.light_passes or not skip or self.hw.machine.hand_busy() \
                     or self.command.line is not None:
-                return PASS_S, 1
+                return 1
             if self.motion.empty() and self.job.current is None:
                 light = True
             elif self._only_motion_awaited():
                 stepping = True  # motion runs ahead while the EEPROMs' steps are inert
             else:
                 # a line part-way (waiting on a heater, say) looks again at every pass
-                return PASS_S, 1
+                return 1
         now = self.clock.now
         # the nearest moment anything waits for (compared one by one: compiled, native
         # floats, where min() over a list would box each)
         horizon = now + IDLE_STEP_S
         soon = now + HEATER_STEP_S
         kind = None
-        for wait in [self.job.waiting, self.command.waiting]:  # (a list: compiled, native)
+        for which in range(2):  # the job's wait, then the command's (no list made each pass)
+            wait = self.job.waiting if which == 0 else self.command.waiting
             if wait is None:
                 continue
             until = wait.until
@@ -244,20 +254,20 @@ class Firmware:
         due = self.heaters.conversion_started + 1.0
         if due < horizon:
             horizon = due
-        if limit is not None:
-            horizon = min(horizon, now + limit)
+        if now + limit < horizon:
+            horizon = now + limit
         if light:  # light passes, then the pass that sees what they led to
             # ending a pass short of the horizon: the passes that reach it are whole, so
             # each object meets its moment at the pass it would one pass at a time
-            n = max(1, int((horizon - now) / PASS_S + 1e-9) - 1)
+            n: i64 = max(1, int((horizon - now) / PASS_S + 1e-9) - 1)
             if self._usb_coming():
                 n = min(n, self._frames_to_act() + 1)
-            return PASS_S, n
+            return n
         motion = self.motion
         if not motion.empty() or self.hw.machine.hand_busy():
             if not skip or not motion.can_run_ahead() or horizon - now < 2 * PASS_S:
-                return PASS_S, 1
-            most = int((horizon - now) / PASS_S + 1e-9)
+                return 1
+            most: i64 = int((horizon - now) / PASS_S + 1e-9)
             may_step = False
             if stepping:  # light passes up to the first EEPROM step that is not inert
                 if self._usb_coming():  # and to the frame that brings what acts
@@ -268,11 +278,11 @@ class Firmware:
                 may_step = inert + 1 < most
                 most = min(most, inert + 1)
                 if most < 2 and not may_step:
-                    return PASS_S, 1
-            when = motion.run_ahead(now + most * PASS_S, kind or "empty")
+                    return 1
+            when = motion.run_ahead(now + float(most) * PASS_S, kind or "empty")
             if when is None:
                 self._may_step = may_step
-                return PASS_S, most
+                return most
             tick = motion.tick_of(when)
             t = now
             k: i64 = 0  # (native integers: compiled, the count below is a plain add)
@@ -287,9 +297,9 @@ class Firmware:
                 t += PASS_S
                 k += 1
                 if motion.tick_of(t) >= tick or k >= most:
-                    return PASS_S, k
+                    return k
         if not skip:
-            return PASS_S, 1
+            return 1
         # idle up to the horizon: the passes short of it are skipped, the clock added up
         # as the tick adds it, a millisecond at a time (it stays on the grid the
         # firmware's millisecond counter keeps); the pass that reaches it runs as it would
@@ -300,13 +310,20 @@ class Firmware:
         while idle < 1 or t + PASS_S < stop:
             t += PASS_S
             idle += 1
-        return PASS_S, idle
+        return idle
 
     def run_pass(self, step: float | None = None, passes: int = 1) -> None:
         """One pass of the loop after the clock moves on by `step` (default: as far as
         nothing is missed), `passes` times over (the passes between do nothing)."""
+        if step is None:
+            may_step = self._may_step  # (what the last plan() left, kept across this one)
+            step = self.next_step()
+            self._may_step = may_step
+        self.run_passes(step, passes)
+
+    def run_passes(self, dt: float, passes: i64) -> None:
+        """`run_pass(dt, passes)`, its arguments native (compiled: nothing boxed)."""
         may_step, self._may_step = self._may_step, False
-        dt = self.next_step() if step is None else step
         # (whatever light work plan() saw: the interrupts it ran ahead may since have
         # emptied the queue, which ends the wait that let a transfer's frames be light)
         if passes > 1 and (self._usb_coming() or not self.eeproms.all_quiet()):
@@ -316,7 +333,7 @@ class Firmware:
             self._step_pass(dt)
             return
         self.clock.advance(dt, passes)
-        self.hw.machine.advance(dt * passes)
+        self.hw.machine.advance(dt * float(passes))
         self.motion.catch_up()
         self.do_everything_else()
         self.maintain_job()
@@ -383,8 +400,7 @@ class Firmware:
                 return True
             if self.clock.now >= end:
                 return False
-            step, passes = self.plan(max(PASS_S, end - self.clock.now))
-            self.run_pass(step, passes)  # (not *plan(): compiled, a native call)
+            self.run_passes(PASS_S, self.passes_planned(max(PASS_S, end - self.clock.now)))
         return condition is not None and condition()
 
     def working(self) -> bool:
@@ -408,8 +424,7 @@ class Firmware:
         written = bus.writes()
         passes = 0
         while passes < max_passes and timeout > 0.0:
-            step, n = self.plan(max(PASS_S, end - self.clock.now))
-            self.run_pass(step, n)
+            self.run_passes(PASS_S, self.passes_planned(max(PASS_S, end - self.clock.now)))
             passes += 1
             if chip_written is not None and bus.writes() != written:
                 written = bus.writes()

@@ -54,8 +54,10 @@ if TYPE_CHECKING:
 
 BUFFER_SIZE: Final = 16
 MASK: Final = BUFFER_SIZE - 1
-#: A run of interrupts with no cap on how many count the length down.
-NO_CAP: Final = 1 << 62
+#: A run of interrupts with no cap on how many count the length down. (Native: 2^62 is
+#: past a tagged integer's range, so compiled, a plain int constant would be a boxed
+#: number, converted at every use and made anew wherever an int returns it.)
+NO_CAP: Final[i64] = 1 << 62
 MIN_SPEED: Final = 2
 MAX_SPEED: Final = 1200
 BOARD_MCK: Final = 96_000_000
@@ -209,8 +211,7 @@ class Motion:
     def ready_for_more(self) -> bool:
         """is_buffer_ready_for_more: not full, and the steps queued are fewer than the
         newest block's speed needs to stop plus a 0.1 s margin."""
-        n = self._counts_until_ready(self.parameters.acceleration)
-        return n is not None and n == 0  # (compiled: a native comparison, not a generic one)
+        return self._counts_until_ready(self.parameters.acceleration) == 0
 
     def aborting(self) -> bool:
         return self.fw.job.abort_flag
@@ -835,14 +836,14 @@ class Motion:
         # cannot be the least of the three and need not be worked out: its radicand,
         # 2 * a * min(length, 2^23) + c, grows with the length (when it cannot wrap).
         need: i64 = -(-top >> 14)
-        sure: i64 = 1 << 62
+        sure: i64 = NO_CAP
         # While the radicand cannot wrap it only falls as the length does, and its root
         # follows from the last one by stepping down (exact, and cheaper than a root).
         unwrapped = (0x00800000 << 1) * a + c <= U32
         if unwrapped:
             sure = max(0, -(-(need * need - c) // (2 * a)))
             if sure > 0x00800000:
-                sure = 1 << 62
+                sure = NO_CAP
         x: i64
         root: i64 = 0
         rooted: i64 = -1  # the radicand `root` is the root of (-1: none yet)

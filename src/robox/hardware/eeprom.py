@@ -65,7 +65,8 @@ class EepromChip:
 
     def will_acknowledge(self, at: float) -> bool:
         """Whether the next transaction, made at time `at`, will be acknowledged."""
-        return self.plugged and self.faults.unplug_at != self.transactions + 1 \
+        unplug_at = self.faults.unplug_at  # (tested for None first: compiled, nothing boxed)
+        return self.plugged and (unplug_at is None or unplug_at != self.transactions + 1) \
             and (self.clock is None or at >= self._busy_until)
 
     def peek_run(self, address: int, n: int) -> bytes:

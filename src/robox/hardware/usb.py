@@ -76,9 +76,14 @@ class UsbLink:
 
     def frame(self) -> None:
         """The end of a loop pass: a packet of the host's bytes to an armed read."""
-        if not self.armed or not self._host:
+        if not self.armed or not len(self._host):  # (a length: compiled, no generic test)
             return
-        n = min(PACKET_SIZE, self.room, len(self._host))
+        # (two-way ifs, not min() of three: compiled, native integers)
+        n = len(self._host)
+        if self.room < n:
+            n = self.room
+        if n > PACKET_SIZE:
+            n = PACKET_SIZE
         if n <= 0:
             return
         self._rx += self._host[:n]
@@ -94,7 +99,9 @@ class UsbLink:
         room = self.room - got
         k = 0
         while left > 0 and room > 0:
-            n = min(PACKET_SIZE, room, left)
+            n = left if left < room else room
+            if n > PACKET_SIZE:
+                n = PACKET_SIZE
             if got + n > inert:
                 break
             got += n
@@ -111,12 +118,12 @@ class UsbLink:
     @property
     def delivering(self) -> bool:
         """Bytes from the host are queued and the firmware's read can take some."""
-        return bool(self._host) and self.armed and self.room > 0
+        return len(self._host) > 0 and self.armed and self.room > 0
 
     @property
     def arriving(self) -> bool:
         """Bytes from the host are queued, not yet delivered."""
-        return bool(self._host)
+        return len(self._host) > 0
 
     @property
     def received(self) -> int:
