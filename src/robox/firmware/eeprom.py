@@ -41,6 +41,7 @@ from robox.formats.protocol import ErrorBit
 from robox.hardware.clock import SimClock
 from robox.hardware.eeprom import EepromChip
 from robox.hardware.eeprom_bus import EepromBus
+from robox.packed import append, i64, vec
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
@@ -469,33 +470,54 @@ class Eeproms:
         """How many passes `run_inert_passes(dt, most)` would run from now, found without
         running them: the loop runs motion ahead only as far as the EEPROMs' steps in
         the passes it skips are inert."""
+        # (_inert_split's walk written out with native locals and vectors: compiled, it
+        # runs before each run ahead, and its lists, tuples and boxed numbers were most
+        # of its cost)
         now = self.clock.now
-        split = self._inert_split(now + dt, most)
-        if split is None:
-            return 0
-        settled, _, most = split
-        if not settled:
-            return most
+        at = now + dt
+        states = self.states
+        n: i64 = most
+        settled = vec[i64]()  # the settled EEPROMs' places in `states`, in order
+        j: i64
+        for j in range(len(states)):
+            state = states[j]
+            if state.status is VALID and state.verified_banks >= 2:
+                settled = append(settled, j)
+                continue
+            chip = self.bus.chip(state.index)
+            if _given_up(state, chip):
+                continue
+            if chip is None:
+                return 0
+            steps: i64 = self._inert_steps(state, chip, at, n)
+            if steps < n:
+                n = steps
+        if not len(settled):
+            return n
         # a settled EEPROM steps every QUIET_STEP_S; the first of its steps found not to
         # be inert ends the run (each inert step moves it one byte on, so its k-th step
         # from now is inert while k is below what the first finds)
-        last = [state.last_step for state in settled]
-        left = [-1] * len(settled)
+        last = vec[float]()
+        left = vec[i64]()
+        for j in range(len(settled)):
+            last = append(last, states[settled[j]].last_step)
+            left = append(left, -1)
         t = now
-        for k in range(most):
+        k: i64
+        for k in range(n):
             t += dt
-            for j, state in enumerate(settled):
+            for j in range(len(settled)):
                 if t - last[j] < QUIET_STEP_S:
                     continue
                 if left[j] < 0:
                     # (no more than the passes left: a step a pass at the most)
-                    left[j] = self._inert_steps(state, self.bus.chip(state.index), t,
-                                                most - k)
+                    state = states[settled[j]]
+                    left[j] = self._inert_steps(state, self.bus.chip(state.index), t, n - k)
                 if left[j] == 0:
                     return k
                 left[j] -= 1
                 last[j] = t
-        return most
+        return n
 
     def _inert_split(self, at: float, most: int) -> tuple[list[EepromState],
                                                          list[tuple[EepromState, EepromChip]],

@@ -54,10 +54,10 @@ if TYPE_CHECKING:
 
 BUFFER_SIZE: Final = 16
 MASK: Final = BUFFER_SIZE - 1
-#: A run of interrupts with no cap on how many count the length down. (Native: 2^62 is
-#: past a tagged integer's range, so compiled, a plain int constant would be a boxed
-#: number, converted at every use and made anew wherever an int returns it.)
-NO_CAP: Final[i64] = 1 << 62
+#: A run of interrupts with no cap on how many count the length down: more than any
+#: count, and within a tagged integer's range (compiled, 2^62 and beyond is a boxed
+#: number, converted at every use).
+NO_CAP: Final = 1 << 61
 MIN_SPEED: Final = 2
 MAX_SPEED: Final = 1200
 BOARD_MCK: Final = 96_000_000
@@ -570,8 +570,15 @@ class Motion:
         a: i64 = self.parameters.acceleration  # (as catch_up() reads it)
         ready = kind == "ready"  # (compared once, not at every run of interrupts)
         while True:
-            cap: i64 = self._counts_until_ready(a) if ready else \
-                (0 if self.empty() else NO_CAP)
+            # (statements, not a conditional expression: compiled, one whose arms mix an
+            # i64 and an int goes through a boxed number)
+            cap: i64
+            if ready:
+                cap = self._counts_until_ready(a)
+            elif self.empty():
+                cap = 0
+            else:
+                cap = NO_CAP
             if cap == 0:
                 return last
             if self.next_tick > limit or not self.machine.z_top_pin():
