@@ -597,7 +597,11 @@ class Motion:
         length: i64 = self.queued_length
         speed = self.block[(self.buffer_in - 1) & MASK].speed
         v = (((speed // a + MARGIN_UNITS) * speed) & U32) >> 5
-        return 0 if length < v else length - v + 1
+        # (statements, not a conditional expression with a literal arm: compiled, that
+        # makes the i64 a boxed number on its way out)
+        if length < v:
+            return 0
+        return length - v + 1
 
     def _advance(self, limit: int, cap: i64, a: i64) -> None:
         """One interrupt, or a run of them, not past `limit` nor past `cap` counted
