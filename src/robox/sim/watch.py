@@ -88,11 +88,12 @@ class Watch:
             deposition.judging = True
         dest, off, homed = p.destination, p.tool_offset, p.homing_done
         asked = self.asked
+        limits = fw.parameters.travel  # (M520's, by axis: a packed vector, read natively)
         for i in range(X, Y + 1):
             wanted = dest[i] + off[i]
             if homed[i] and wanted != asked[i]:  # a new destination on this axis
                 asked[i] = wanted
-                travel: float = p.pa["travel"]["XY"[i]]
+                travel: float = limits[i]
                 if wanted < -EPSILON_MM or wanted > travel + EPSILON_MM:
                     self._note(self.clamped_lines, line)
         if moves[E] <= 0.0 and moves[D] <= 0.0:
