@@ -4,6 +4,7 @@ next command or is, as the firmware would be, still collecting an incomplete one
 import ctypes
 import ctypes.util
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -102,3 +103,14 @@ def test_hex_fields_read_as_the_c_librarys_strtoul_reads_them(field):
     libc.strtoul.restype = ctypes.c_ulong
     libc.strtoul.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_char_p), ctypes.c_int]
     assert get_hex(field) == libc.strtoul(field, None, 16), field
+
+
+@pytest.mark.parametrize("digits", [1, 4, 8, 14, 15, 16, 17, 20])
+def test_long_hex_fields_keep_every_digit_to_64_bits(digits):
+    """The digits past what adds up natively (15 and more) read as a whole number too,
+    kept to its low 64 bits; from a bytearray as from bytes, and stopping at a NUL."""
+    text = ("fedcba9876543210" * 2)[:digits].encode()
+    expected = int(text, 16) & 0xFFFFFFFFFFFFFFFF
+    assert get_hex(text) == expected
+    assert get_hex(bytearray(b" 0x" + text.upper() + b"\0ff")) == expected
+    assert get_hex(b"-" + text) == -int(text, 16) & 0xFFFFFFFFFFFFFFFF

@@ -32,6 +32,7 @@ from robox.firmware.gcode import Wait, Waits, is_reporting
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import PAUSE_MASK, PAUSE_MASK_CONNECTED, ErrorBit
 from robox.formats.sdcard import ID_SIZE
+from robox.packed import i64
 
 if TYPE_CHECKING:
     from robox.firmware.error_flags import ErrorFlags
@@ -79,20 +80,35 @@ def _no_reply(response: bytes) -> None:
 
 def get_hex(field: bytes | bytearray) -> int:
     """The firmware's get_hex: strtoul(field, 16) over the field as a C string."""
-    text = bytes(field).split(b"\0", 1)[0]
-    n = len(text)
-    i = 0
-    while i < n and (text[i] == 32 or 9 <= text[i] <= 13):  # white space (native compares)
+    # (bytes from here, the positions native integers: compiled, a union's items are
+    # generic lookups, and splitting at the NUL made a list and a copy)
+    text: bytes = field if isinstance(field, bytes) else bytes(field)
+    n: i64 = len(text)
+    k: i64
+    for k in range(n):  # the C string ends at its first NUL
+        if text[k] == 0:
+            n = k
+            break
+    i: i64 = 0
+    while i < n and (text[i] == 32 or 9 <= text[i] <= 13):  # white space
         i += 1
     negative = i < n and text[i] == 45  # -
     if i < n and (text[i] == 43 or text[i] == 45):
         i += 1
     if i + 2 < n and text[i] == 48 and text[i + 1] | 0x20 == 120 and _hex_digit(text[i + 2]):
         i += 2  # 0x or 0X, taken only before a digit
-    j = i
+    j: i64 = i
     while j < n and _hex_digit(text[j]):
         j += 1
-    value = int(text[i:j], 16) if j > i else 0
+    value: int
+    if j - i <= 15:  # (below 2**60: added up natively)
+        whole: i64 = 0
+        for k in range(i, j):
+            c = text[k] | 0x20
+            whole = whole * 16 + (c - 48 if c <= 57 else c - 87)
+        value = whole
+    else:
+        value = int(text[i:j], 16)
     return (-value if negative else value) & 0xFFFFFFFFFFFFFFFF
 
 
