@@ -187,6 +187,13 @@ def test_rows_spilled_to_a_file_read_back_as_kept_in_memory(tmp_path, monkeypatc
     spilled.finish()
     assert spilled.spilled > 10 and len(spilled.rows["x0"]) <= 4
     assert list(spilled.iter_rows()) == list(kept.iter_rows())
+    # the same rows as chunks of columns, spilled or kept (what Quality walks)
+    for dep in (spilled, kept):
+        chunks = [[list(column) for column in chunk] for chunk in dep.iter_columns()]
+        assert all(len(chunk) == 9 and len({len(c) for c in chunk}) == 1 for chunk in chunks)
+        walked = [row for chunk in chunks for row in zip(*chunk, strict=True)]
+        assert walked == list(kept.iter_rows())
+    assert len(list(spilled.iter_columns())) > 3  # chunks read back from the file
 
 
 # Places on the machine's microstep grid (133.7 per mm), and joints on, beside and
@@ -219,3 +226,32 @@ def test_joints_and_lumps_are_judged_as_with_math_hypot(px, py, qx, qy, t, off, 
                                                             1e-9) + deposition.BLOB_MM3
     for laid in (dep1, bound, math.nextafter(bound, 0.0), math.nextafter(bound, 9.0)):
         assert deposition._no_lump(dep0, laid, px, py, jx, jy, qx, qy) == (laid <= bound)
+
+
+def test_quality_judges_the_paths_opened_once_the_record_judges():
+    """A path opened while the record is told not to judge (a start sequence's purge) is
+    left out of the figures, whatever its number; the paths after it are judged."""
+    from robox.sim.quality import Quality
+
+    m, dep = machine()
+
+    def purge_at(x_steps: int) -> None:
+        m.x, m.y = x_steps, 2674  # (20 mm in)
+        m.step(B, B_UNIT)  # open standing
+        m.step(E, 400)  # the refill, then plastic left standing: a blob
+        m.step(B, -B_UNIT)
+
+    dep.judging = False
+    purge_at(2674)  # the first path, at X 20 mm: not judged
+    dep.judging = True
+    purge_at(4011)  # at X 30 mm
+    purge_at(5348)  # at X 40 mm
+    dep.finish()
+    assert [p.judged for p in dep.paths] == [False, True, True]
+    quality = Quality(dep, [(0.0, 0.0, 0.0)] * 2, (210.0, 150.0))
+    figures, places = quality.figures()
+    assert figures["blobs"] == 2
+    assert sorted(round(place.x) for place in places) == [30, 40]
+    # rows() leaves the first path out too: travels (-1) and the judged paths are left
+    judged = {p.number for p in dep.paths if p.judged}
+    assert len(judged) == 2 and {path for *_, path in quality.rows()} == {-1} | judged

@@ -445,6 +445,24 @@ class Deposition:
         self._empty_columns()
         self.spilled += n
 
+    def iter_columns(self) -> Iterator[list[vec[float]]]:
+        """Every row, oldest first, as chunks of columns (in COLUMNS' order, of equal
+        lengths): what iter_rows gives, for a reader that walks the columns by index
+        (compiled, natively, where each row of iter_rows is a tuple of boxed numbers)."""
+        if self.spill is not None and self.spilled:
+            with open(self.spill, "rb") as f:
+                while header := f.read(8):
+                    n = int.from_bytes(header, "little")
+                    columns: list[vec[float]] = []
+                    for _ in COLUMNS:
+                        column = array("d")
+                        column.fromfile(f, n)
+                        columns.append(vec[float](column.tolist()))
+                    yield columns
+        yield self._column_list()
+        if self._has_last:
+            yield [vec[float]([value]) for value in self._last()]
+
     def iter_rows(self) -> Iterator[tuple[float, ...]]:
         """Every row, oldest first: (x0, y0, x1, y1, z, deposited, driven, nozzle,
         path)."""

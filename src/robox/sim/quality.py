@@ -116,35 +116,54 @@ class Quality:
 
         run: Place | None = None  # the starved stretch being followed
         last_path = -2
-        for x0, y0, x1, y1, z, dep, drv, _n, path in self.rows():
-            on_plate = self.on_plate(x1, y1)
-            if dep > 0.0 and on_plate:
-                heights.add(_round2(z))
-            if path < 0 or not on_plate:
-                continue
-            deposited += dep
-            driven += drv
-            length = math.hypot(x1 - x0, y1 - y0)
-            if length < STANDING_MM:
-                if dep >= BLOB_MM3:
-                    blob += dep
-                    blobs += 1
-                    keep(Place("blob", 0, x1, y1, z, dep))
-                continue
-            if dep < STARVED * drv:
-                starved_mm += length
-                if run is not None and last_path == path and (run.x, run.y) == (x0, y0):
-                    run.mm3 += drv - dep
-                    run.length_mm += length
-                    run.x, run.y = x1, y1
-                else:
-                    if run is not None:
-                        keep(run)
-                    run = Place("starved", 0, x1, y1, z, drv - dep, length)
-                last_path = path
-            elif run is not None:
-                keep(run)
-                run = None
+        # rows() walked by index over the record's columns (compiled, natively: a row of
+        # rows() is a tuple of boxed numbers); the paths left unjudged are the start
+        # sequence's, looked up only within their numbers' range
+        offsets = self.offsets
+        unjudged = self.unjudged
+        low_unjudged = min(unjudged) if unjudged else 0
+        high_unjudged = max(unjudged) if unjudged else -1
+        k: i64
+        for columns in self.dep.iter_columns():
+            cx0, cy0, cx1, cy1 = columns[0], columns[1], columns[2], columns[3]
+            cz, cdep, cdrv, cnozzle, cpath = (columns[4], columns[5], columns[6],
+                                               columns[7], columns[8])
+            for k in range(len(cx0)):
+                path = int(cpath[k])
+                if low_unjudged <= path <= high_unjudged and path in unjudged:
+                    continue
+                n = int(cnozzle[k])
+                ox, oy, oz = offsets[n] if n >= 0 else offsets[0]
+                x0, y0, x1, y1 = cx0[k] - ox, cy0[k] - oy, cx1[k] - ox, cy1[k] - oy
+                z, dep, drv = cz[k] - oz, cdep[k], cdrv[k]
+                on_plate = self.on_plate(x1, y1)
+                if dep > 0.0 and on_plate:
+                    heights.add(_round2(z))
+                if path < 0 or not on_plate:
+                    continue
+                deposited += dep
+                driven += drv
+                length = math.hypot(x1 - x0, y1 - y0)
+                if length < STANDING_MM:
+                    if dep >= BLOB_MM3:
+                        blob += dep
+                        blobs += 1
+                        keep(Place("blob", 0, x1, y1, z, dep))
+                    continue
+                if dep < STARVED * drv:
+                    starved_mm += length
+                    if run is not None and last_path == path and (run.x, run.y) == (x0, y0):
+                        run.mm3 += drv - dep
+                        run.length_mm += length
+                        run.x, run.y = x1, y1
+                    else:
+                        if run is not None:
+                            keep(run)
+                        run = Place("starved", 0, x1, y1, z, drv - dep, length)
+                    last_path = path
+                elif run is not None:
+                    keep(run)
+                    run = None
         if run is not None:
             keep(run)
         ends = sum(1 for p in self.paths if p.closed and self.on_plate(
