@@ -87,8 +87,9 @@ NOZZLE_STEPS: Final = tuple(_steps(axis, NOZZLE_MM) for axis in range(len(STEPS_
 class Filament:
     """A length of filament in an extruder's path, in that extruder's microsteps."""
 
-    tip: int
-    tail: int
+    # (native integers: compiled, every feed step's sums and comparisons are native)
+    tip: i64
+    tail: i64
 
 
 @dataclass
@@ -212,17 +213,18 @@ class Machine:
         else:
             self._drive(axis, n)
 
-    def _drive(self, axis: int, n: int) -> None:
+    def _drive(self, axis: int, n: i64) -> None:
         f = self.filament[axis]
         if f is None or not f.tail <= 0 <= f.tip:
             return  # nothing under the drive
-        nozzle = NOZZLE_STEPS[axis]
-        moved = n
+        nozzle: i64 = self._nozzle_steps[axis]
+        moved: i64 = n
         if n < 0 and self.deposition is not None:
             self.deposition.drawn_back(axis, -n)
         if n > 0 and f.tip + n > nozzle:
-            if self.nozzle_hot(axis):
-                out = f.tip + n - max(f.tip, nozzle)
+            nozzle0, nozzle1 = self._nozzles  # (nozzle_hot(), written out)
+            if nozzle0.sensed >= MELT_C or nozzle1.sensed >= MELT_C:
+                out: i64 = f.tip + n - (f.tip if f.tip > nozzle else nozzle)
                 dep = self.deposition
                 if dep is not None:
                     taken = dep.fed(axis, out)
@@ -231,15 +233,18 @@ class Machine:
                         out = taken
                 self.extruded[axis] += out
                 f.tail += n
-                f.tip = max(f.tip, nozzle)
+                if nozzle > f.tip:
+                    f.tip = nozzle
                 self._turn_wheel(axis, n)
                 return
-            moved = max(0, nozzle - f.tip)  # pushed against a cold nozzle: the drive slips
+            moved = 0  # pushed against a cold nozzle: the drive slips
+            if nozzle > f.tip:
+                moved = nozzle - f.tip
         f.tip += moved
         f.tail += moved
         self._turn_wheel(axis, moved)
 
-    def _turn_wheel(self, axis: int, n: int) -> None:
+    def _turn_wheel(self, axis: int, n: i64) -> None:
         if not self.wheel_slipping[axis]:
             self.wheel_passed[axis] += n
 
@@ -339,8 +344,14 @@ class Machine:
         f = self.filament[axis]
         if f is None:
             return NEVER
-        sensor = SENSOR_STEPS[axis]
-        return min(abs(f.tip - sensor), abs(f.tail - sensor)) + 1
+        sensor: i64 = self._sensor_steps[axis]
+        to_tip: i64 = f.tip - sensor
+        to_tail: i64 = f.tail - sensor
+        if to_tip < 0:
+            to_tip = -to_tip
+        if to_tail < 0:
+            to_tail = -to_tail
+        return (to_tip if to_tip < to_tail else to_tail) + 1
 
     # ------------------------------------------------------------ people
     def insert_filament(self, axis: int, length_mm: float = 240_000.0,
@@ -370,8 +381,9 @@ class Machine:
         self._heater_list = list(self.heaters.values())
         # and the two nozzles', read on every feed step (no lookups by name)
         self._nozzles = (self.heaters["nozzle0"], self.heaters["nozzle1"])
-        # where each path's filament sensor is (a packed vector: read natively)
+        # where each path's filament sensor and nozzle are (packed vectors: read natively)
         self._sensor_steps = vec[i64](list(SENSOR_STEPS))
+        self._nozzle_steps = vec[i64](list(NOZZLE_STEPS))
 
     def advance(self, seconds: float) -> None:
         for heater in self._heater_list:

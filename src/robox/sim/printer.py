@@ -411,8 +411,8 @@ class VirtualPrinter:
             f = machine.filament[axis]
             steps = STEPS_PER_MM[axis]
             feeds[name] = None if f is None or f.tip <= f.tail else {
-                "length_mm": round((f.tip - f.tail) / steps, 3),
-                "tip_mm": round(f.tip / steps, 3)}
+                "length_mm": round(int(f.tip - f.tail) / steps, 3),
+                "tip_mm": round(int(f.tip) / steps, 3)}
         write_filament(self.state_dir, feeds)
 
     def close(self) -> None:
