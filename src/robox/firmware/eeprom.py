@@ -470,39 +470,26 @@ class Eeproms:
         """How many passes `run_inert_passes(dt, most)` would run from now, found without
         running them: the loop runs motion ahead only as far as the EEPROMs' steps in
         the passes it skips are inert."""
-        # (_inert_split's walk written out with native locals and vectors: compiled, it
-        # runs before each run ahead, and its lists, tuples and boxed numbers were most
-        # of its cost)
         now = self.clock.now
-        at = now + dt
-        states = self.states
-        n: i64 = most
-        settled = vec[i64]()  # the settled EEPROMs' places in `states`, in order
-        j: i64
-        for j in range(len(states)):
-            state = states[j]
-            if state.status is VALID and state.verified_banks >= 2:
-                settled = append(settled, j)
-                continue
-            chip = self.bus.chip(state.index)
-            if _given_up(state, chip):
-                continue
-            if chip is None:
-                return 0
-            steps: i64 = self._inert_steps(state, chip, at, n)
-            if steps < n:
-                n = steps
-        if not len(settled):
-            return n
+        split = self._inert_split(now + dt, most)
+        if split is None:
+            return 0
+        settled, _, most = split
+        if not settled:
+            return most
         # a settled EEPROM steps every QUIET_STEP_S; the first of its steps found not to
         # be inert ends the run (each inert step moves it one byte on, so its k-th step
-        # from now is inert while k is below what the first finds)
+        # from now is inert while k is below what the first finds). (Native locals and
+        # packed vectors: compiled, the walk runs before each run ahead, and boxed times
+        # in lists were most of its cost.)
+        n: i64 = most
         last = vec[float]()
         left = vec[i64]()
-        for j in range(len(settled)):
-            last = append(last, states[settled[j]].last_step)
+        for state in settled:
+            last = append(last, state.last_step)
             left = append(left, -1)
         t = now
+        j: i64
         k: i64
         for k in range(n):
             t += dt
@@ -511,7 +498,7 @@ class Eeproms:
                     continue
                 if left[j] < 0:
                     # (no more than the passes left: a step a pass at the most)
-                    state = states[settled[j]]
+                    state = settled[j]
                     left[j] = self._inert_steps(state, self.bus.chip(state.index), t, n - k)
                 if left[j] == 0:
                     return k
