@@ -222,7 +222,8 @@ class Machine:
         if n < 0 and self.deposition is not None:
             self.deposition.drawn_back(axis, -n)
         if n > 0 and f.tip + n > nozzle:
-            nozzle0, nozzle1 = self._nozzles  # (nozzle_hot(), written out)
+            # the nozzles hot enough to melt it (either: both melt the one path's filament)
+            nozzle0, nozzle1 = self._nozzles
             if nozzle0.sensed >= MELT_C or nozzle1.sensed >= MELT_C:
                 out: i64 = f.tip + n - (f.tip if f.tip > nozzle else nozzle)
                 dep = self.deposition
@@ -247,11 +248,6 @@ class Machine:
     def _turn_wheel(self, axis: int, n: i64) -> None:
         if not self.wheel_slipping[axis]:
             self.wheel_passed[axis] += n
-
-    def nozzle_hot(self, axis: int) -> bool:
-        # (either nozzle: both melt the one path's filament)
-        nozzle0, nozzle1 = self._nozzles
-        return nozzle0.sensed >= MELT_C or nozzle1.sensed >= MELT_C
 
     # ------------------------------------------------------------ inputs
     def nozzle_height(self) -> float:
