@@ -76,6 +76,19 @@ def test_strtol_and_strtoul_read_what_the_c_library_reads(text):
 
 
 @settings(max_examples=2000, deadline=None)
+@given(st.sampled_from([b"", b" ", b"\t "]), st.sampled_from([b"", b"-", b"+"]),
+       st.text("0123456789", min_size=15, max_size=24).map(str.encode),
+       st.sampled_from([b"", b"X", b"5", b".5", b" 7"]))
+def test_long_integers_read_as_the_c_library_reads_them(blank, sign, digits, tail):
+    """Up to 18 digits are added up natively; from 19 on Python's integers read them,
+    and past a long's range strtol saturates and strtoul wraps or saturates."""
+    text = blank + sign + digits + tail
+    assert strtol(text) == _c_call(_libc.strtol, text, 10)[0], text
+    assert strtoul(text) == _c_call(_libc.strtoul, text, 10)[0], text
+    assert Line(b"M" + text).int("M") == _c_call(_libc.strtol, text, 10)[0], text
+
+
+@settings(max_examples=2000, deadline=None)
 @given(_TEXTS)
 def test_a_parameter_is_the_c_float_of_strtod_after_its_letter(text):
     line = Line(b"G1 X" + text)

@@ -29,6 +29,7 @@ from robox.packed import i64, vec
 LONG_MAX: Final = (1 << 63) - 1
 LONG_MIN: Final = -(1 << 63)
 ULONG_MAX: Final = (1 << 64) - 1
+_TAGGED: Final = (1 << 62) - 1  # the most a compiled int holds without a heap number
 _DEC: Final = re.compile(rb"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 _HEX: Final = re.compile(rb"([+-]?)0[xX]((?:[0-9a-fA-F]+\.?[0-9a-fA-F]*|\.[0-9a-fA-F]+))"
                          rb"(?:[pP]([+-]?\d+))?")
@@ -106,6 +107,29 @@ def _strtod_at(text: bytes, start: int) -> tuple[float, int]:
 
 
 def _leading_integer(text: bytes, start: int = 0) -> int:
+    # (native integers: compiled, up to 18 digits are added up without a slice or
+    # int()'s parsing, and every such number is far inside a long)
+    data: bytes = text if isinstance(text, bytes) else bytes(text)
+    n: i64 = len(data)
+    k: i64 = start
+    while k < n and (data[k] == 32 or 9 <= data[k] <= 13):  # white space
+        k += 1
+    negative = k < n and data[k] == 45  # -
+    if k < n and (data[k] == 43 or data[k] == 45):
+        k += 1
+    whole: i64 = 0
+    digits: i64 = 0
+    while k < n and 48 <= data[k] <= 57:
+        if digits == 18:
+            return _long_integer(data, start)
+        whole = whole * 10 + (data[k] - 48)
+        digits += 1
+        k += 1
+    return -whole if negative else whole
+
+
+def _long_integer(text: bytes, start: int) -> int:
+    """_leading_integer's reading of 19 digits and more, in Python's integers."""
     i = skip_blanks(text, start)
     k = _plain_number_end(text, i, False)
     if k >= 0:
@@ -116,12 +140,18 @@ def _leading_integer(text: bytes, start: int = 0) -> int:
 
 def strtol(text: bytes, start: int = 0) -> int:
     """C's strtol(text + start, NULL, 10), saturating at the limits of a 64-bit long."""
-    return max(LONG_MIN, min(LONG_MAX, _leading_integer(text, start)))
+    value = _leading_integer(text, start)
+    # (compared only past 2**62: compiled, the limits are heap numbers, not tagged ones)
+    if -_TAGGED <= value <= _TAGGED:
+        return value
+    return max(LONG_MIN, min(LONG_MAX, value))
 
 
 def strtoul(text: bytes, start: int = 0) -> int:
     """C's strtoul(text + start, NULL, 10): a negative number wraps, overflow saturates."""
     value = _leading_integer(text, start)
+    if 0 <= value <= _TAGGED:
+        return value
     return ULONG_MAX if abs(value) > ULONG_MAX else value & ULONG_MAX
 
 
