@@ -255,3 +255,25 @@ def test_quality_judges_the_paths_opened_once_the_record_judges():
     # rows() leaves the first path out too: travels (-1) and the judged paths are left
     judged = {p.number for p in dep.paths if p.judged}
     assert len(judged) == 2 and {path for *_, path in quality.rows()} == {-1} | judged
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.sampled_from(["RBX01-SM", "RBX01-DM"]),
+       st.lists(st.tuples(st.sampled_from([B, E]), st.integers(-3000, 3000)), max_size=30))
+def test_the_open_nozzle_kept_for_each_feed_follows_the_needles(head, runs):
+    """The feed steps ask which nozzle of their feed is open (the first whose needle is off
+    its seat): kept as the needles move, it is what the openings say after every run."""
+    m = Machine()
+    m.heaters["nozzle0"].temperature = m.heaters["nozzle1"].temperature = 210.0
+    m.insert_filament(E, tip_mm=NOZZLE_MM)
+    m.b = round(SEAT * B_UNIT)
+    dep = Deposition(head_valves(head), (1.75, 1.75), (SEAT, -0.70))
+    dep.attach(m)
+    for axis, n in runs:
+        if axis == E and n < 0:
+            n = -n  # fed, so that the plastic and the needle move in one run
+        m.step(axis, n)
+        for feed in (E, E + 1):
+            nozzles = [k for k in range(len(dep.opening))
+                       if dep.feed_axis[k] == feed and dep.opening[k] > 0.0]
+            assert dep._open_nozzle(feed) == (nozzles[0] if nozzles else -1)

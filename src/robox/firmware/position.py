@@ -29,7 +29,7 @@ from robox.firmware.motion import FLT_MAX, READY_WAIT
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, X, Y, Z
-from robox.packed import vec
+from robox.packed import i64, vec
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
@@ -67,6 +67,9 @@ class Position:
     destination: vec[float]
     position: vec[float]
     tool_offset: vec[float]
+    # per extruder (E, D): read at every extruding move and by the slip monitor's pass
+    diameter: vec[float]
+    multiplier: vec[float]
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
@@ -90,8 +93,8 @@ class Position:
         self.tool_offset = vec[float]([0.0] * 6)
         self.unpark_destination = [0.0] * 6
         self.home_delta = [0.0] * 6
-        self.diameter = [DEFAULT_DIAMETER, DEFAULT_DIAMETER]
-        self.multiplier = [1.0, 1.0]
+        self.diameter = vec[float]([DEFAULT_DIAMETER, DEFAULT_DIAMETER])
+        self.multiplier = vec[float]([1.0, 1.0])
         self.levelling: list[tuple[float, float, float]] = []
         self.z_washout = 0.0
         self.what = NORMAL
@@ -109,7 +112,7 @@ class Position:
         beyond 1 have none."""
         return self._head_float(0x40 + tool * 0x30 + offset) if tool < 2 else 0.0
 
-    def filament_multiplier(self, i: int) -> float:
+    def filament_multiplier(self, i: i64) -> float:
         return self.multiplier[i]
 
     # ------------------------------------------------------ levelling

@@ -133,6 +133,10 @@ class Deposition:
         self.pressure = vec[float]([0.0] * (D_AXIS + 1))
         self.feed_axis = vec[i64]([E_AXIS if f == E_FEED else D_AXIS
                                    for f in self.valves.feeds])
+        # per feed, its nozzle whose needle is off its seat (-1: all shut): asked at every
+        # feed step, it changes only when a needle moves (_note_openings)
+        self._open_of = vec[i64]([-1] * (D_AXIS + 1))
+        self._note_openings()
         self.mm3_per_step = vec[float]([0.0] * (D_AXIS + 1))
         for axis, d in ((E_AXIS, self.diameters_mm[0]), (D_AXIS, self.diameters_mm[1])):
             self.mm3_per_step[axis] = math.pi * d * d / 4.0 / E_STEPS
@@ -222,13 +226,19 @@ class Deposition:
         self.b = b
         self._set_openings(b, record=True)
 
-    def _open_nozzle(self, axis: int) -> int:
+    def _open_nozzle(self, axis: i64) -> i64:
         """The nozzle of feed `axis` whose needle is off its seat (-1: all shut)."""
-        feeds, opening = self.feed_axis, self.opening
-        for n in range(len(feeds)):
-            if feeds[n] == axis and opening[n] > 0.0:
-                return n
-        return -1
+        return self._open_of[axis]
+
+    def _note_openings(self) -> None:
+        """_open_nozzle's answers, after a needle has moved: for each feed, the first of
+        its nozzles that is open."""
+        feeds, opening, open_of = self.feed_axis, self.opening, self._open_of
+        open_of[E_AXIS] = open_of[D_AXIS] = -1
+        n: i64
+        for n in range(len(feeds) - 1, -1, -1):  # (backwards: the first one is kept)
+            if opening[n] > 0.0:
+                open_of[feeds[n]] = n
 
     def _feed(self, axis: int, mm3: float) -> None:
         n = self._open_nozzle(axis)
@@ -253,6 +263,8 @@ class Deposition:
             if o == before:
                 continue
             self.opening[n] = o
+            if (o > 0.0) != (before > 0.0):  # off its seat, or back on it
+                self._note_openings()
             if not record:
                 continue
             ejection = self.ejection_mm3[n]
