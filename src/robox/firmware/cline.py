@@ -44,9 +44,28 @@ _MOVE_SLOT: Final = bytes(MOVE_LETTERS.find(bytes((c,))) + 1 for c in range(256)
 float32 = f32  # `value` rounded to C float precision (overflow gives infinity, as C does)
 
 
-def report_float(value: float) -> bytes:
-    """A float as the status report carries it: float8, NUL padded."""
-    return float8.encode(f32(value), b"\0")
+def report_float(value: float, keep: bool = True) -> bytes:
+    """A float as the status report carries it: float8, NUL padded (`keep`: a figure
+    that may well come again, kept)."""
+    value = f32(value)
+    # Formatting is most of a status report's cost, and its figures (targets, diameters,
+    # settled temperatures, a standing head) repeat from report to report: the fields
+    # of the latest ones are kept. (A zero is left out, -0.0 being equal to 0.0 as a
+    # key, and so is NaN, which equals nothing.)
+    if value == 0.0 or value != value or not keep:
+        return float8.encode(value, b"\0")
+    field = _REPORTED.get(value)
+    if field is None:
+        if len(_REPORTED) >= REPORTED_KEPT:
+            _REPORTED.clear()
+        field = float8.encode(value, b"\0")
+        _REPORTED[value] = field
+    return field
+
+
+#: report_float's fields, by value (cleared when full).
+_REPORTED: Final[dict[float, bytes]] = {}
+REPORTED_KEPT: Final = 4096
 
 
 def strtod(text: bytes) -> tuple[float, int]:

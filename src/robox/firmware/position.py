@@ -649,7 +649,8 @@ class Position:
 
     def position_report(self) -> bytes:
         """Status bytes 139..171: X, Y, Z, B as float8 (NUL padded), then the tool."""
-        return b"".join(report_float(v) for v in self._shown()) + b"%d" % self.tool
+        # (not kept: while a job runs, the head is somewhere else at every report)
+        return b"".join(report_float(v, False) for v in self._shown()) + b"%d" % self.tool
 
     def filament_report(self) -> bytes:
         """Status bytes 172..219: E and D diameters and multipliers, then the D and E
