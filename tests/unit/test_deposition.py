@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robox.formats.heads import head_valves
-from robox.hardware.deposition import PRESSURE_LIMIT_MM3, STANDING_MM, Deposition
+from robox.hardware.deposition import COLUMNS, PRESSURE_LIMIT_MM3, STANDING_MM, Deposition
 from robox.hardware.machine import NOZZLE_MM, B, E, Machine, X, Y
 
 MM3_PER_STEP = math.pi * 1.75 * 1.75 / 4 / 747
@@ -186,6 +186,9 @@ def test_rows_spilled_to_a_file_read_back_as_kept_in_memory(tmp_path, monkeypatc
     draw(spilled_m)
     spilled.finish()
     assert spilled.spilled > 10 and len(spilled.rows["x0"]) <= 4
+    # kept wholly in memory, the rows are its columns side by side
+    in_memory = list(zip(*(kept.rows[name] for name in COLUMNS), strict=True))
+    assert len(in_memory) > 10 and list(kept.iter_rows()) == in_memory
     assert list(spilled.iter_rows()) == list(kept.iter_rows())
     # the same rows as chunks of columns, spilled or kept (what Quality walks)
     for dep in (spilled, kept):

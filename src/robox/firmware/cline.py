@@ -130,9 +130,7 @@ def _leading_integer(text: bytes, start: int = 0) -> int:
     # int()'s parsing, and every such number is far inside a long)
     data: bytes = text if isinstance(text, bytes) else bytes(text)
     n: i64 = len(data)
-    k: i64 = start
-    while k < n and (data[k] == 32 or 9 <= data[k] <= 13):  # white space
-        k += 1
+    k = skip_blanks(data, start)
     negative = k < n and data[k] == 45  # -
     if k < n and (data[k] == 43 or data[k] == 45):
         k += 1

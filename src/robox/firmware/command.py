@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Final
 
 from robox.firmware.gcode import Wait, Waits, is_reporting
 from robox.formats.eeprom import EepromIndex
+from robox.formats.float8 import skip_blanks
 from robox.formats.protocol import PAUSE_MASK, PAUSE_MASK_CONNECTED, ErrorBit
 from robox.formats.sdcard import ID_SIZE
 from robox.packed import i64
@@ -89,9 +90,7 @@ def get_hex(field: bytes | bytearray) -> int:
         if text[k] == 0:
             n = k
             break
-    i: i64 = 0
-    while i < n and (text[i] == 32 or 9 <= text[i] <= 13):  # white space
-        i += 1
+    i = skip_blanks(text, 0)  # (it stops at the NUL, if not before)
     negative = i < n and text[i] == 45  # -
     if i < n and (text[i] == 43 or text[i] == 45):
         i += 1

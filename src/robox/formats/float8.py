@@ -77,9 +77,9 @@ def shortest(value: float) -> float:
     return target
 
 
-def skip_blanks(text: bytes, i: int) -> int:
+def skip_blanks(text: bytes, i: i64) -> i64:
     """Where the first byte at or after `i` that is not white space is (len: none)."""
-    n = len(text)
+    n: i64 = len(text)  # (native integers: compiled, indexing is native)
     # the white space strtod and strtol skip (the pattern's \s): space, \t \n \v \f \r
     while i < n and (text[i] == 32 or 9 <= text[i] <= 13):
         i += 1

@@ -478,19 +478,8 @@ class Deposition:
     def iter_rows(self) -> Iterator[tuple[float, ...]]:
         """Every row, oldest first: (x0, y0, x1, y1, z, deposited, driven, nozzle,
         path)."""
-        if self.spill is not None and self.spilled:
-            with open(self.spill, "rb") as f:
-                while header := f.read(8):
-                    n = int.from_bytes(header, "little")
-                    columns = []
-                    for _ in COLUMNS:
-                        column = array("d")
-                        column.fromfile(f, n)
-                        columns.append(column)
-                    yield from zip(*columns, strict=True)
-        yield from zip(*self._column_list(), strict=True)
-        if self._has_last:
-            yield self._last()
+        for columns in self.iter_columns():
+            yield from zip(*columns, strict=True)
 
 
 def _straight(px: float, py: float, jx: float, jy: float, qx: float, qy: float) -> bool:

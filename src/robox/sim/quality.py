@@ -62,6 +62,9 @@ class Quality:
         self.bed = bed
         self.paths = [p for p in dep.paths if p.judged]
         self.unjudged = {p.number for p in dep.paths if not p.judged}
+        # (the start sequence's numbers: looked up in the set only within their range)
+        self._unjudged_low = min(self.unjudged) if self.unjudged else 0
+        self._unjudged_high = max(self.unjudged) if self.unjudged else -1
         self.offsets = offsets
         # one pass over the record: the figures, and the heights the layers come from (a
         # place's layer is given once they are known)
@@ -76,13 +79,21 @@ class Quality:
                                      int]]:
         """(x0, y0, x1, y1, z, deposited, driven, nozzle, path) in the job's frame, the
         start sequence's paths left out."""
-        offsets, unjudged = self.offsets, self.unjudged
         for x0, y0, x1, y1, z, dep, drv, nozzle, path in self.dep.iter_rows():
             n, p = int(nozzle), int(path)
-            if p in unjudged:
+            if self._left_out(p):
                 continue
-            ox, oy, oz = offsets[n] if n >= 0 else offsets[0]
+            ox, oy, oz = self._offset(n)
             yield x0 - ox, y0 - oy, x1 - ox, y1 - oy, z - oz, dep, drv, n, p
+
+    def _left_out(self, path: int) -> bool:
+        """Whether the row's path is one of the start sequence's, not judged."""
+        return self._unjudged_low <= path <= self._unjudged_high and path in self.unjudged
+
+    def _offset(self, nozzle: int) -> tuple[float, float, float]:
+        """What takes a nozzle's row from the machine's frame to the job's (a travel's,
+        nozzle -1, by nozzle 0's)."""
+        return self.offsets[nozzle] if nozzle >= 0 else self.offsets[0]
 
     def on_plate(self, x: float, y: float) -> bool:
         return -EDGE_MM <= x <= self.bed[0] + EDGE_MM and -EDGE_MM <= y <= self.bed[1] + EDGE_MM
@@ -117,12 +128,7 @@ class Quality:
         run: Place | None = None  # the starved stretch being followed
         last_path = -2
         # rows() walked by index over the record's columns (compiled, natively: a row of
-        # rows() is a tuple of boxed numbers); the paths left unjudged are the start
-        # sequence's, looked up only within their numbers' range
-        offsets = self.offsets
-        unjudged = self.unjudged
-        low_unjudged = min(unjudged) if unjudged else 0
-        high_unjudged = max(unjudged) if unjudged else -1
+        # rows() is a tuple of boxed numbers)
         k: i64
         for columns in self.dep.iter_columns():
             cx0, cy0, cx1, cy1 = columns[0], columns[1], columns[2], columns[3]
@@ -130,10 +136,9 @@ class Quality:
                                                columns[7], columns[8])
             for k in range(len(cx0)):
                 path = int(cpath[k])
-                if low_unjudged <= path <= high_unjudged and path in unjudged:
+                if self._left_out(path):
                     continue
-                n = int(cnozzle[k])
-                ox, oy, oz = offsets[n] if n >= 0 else offsets[0]
+                ox, oy, oz = self._offset(int(cnozzle[k]))
                 x0, y0, x1, y1 = cx0[k] - ox, cy0[k] - oy, cx1[k] - ox, cy1[k] - oy
                 z, dep, drv = cz[k] - oz, cdep[k], cdrv[k]
                 on_plate = self.on_plate(x1, y1)
