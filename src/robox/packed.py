@@ -1,4 +1,6 @@
 """Fixed-size vectors of native numbers for the compiled core; plain lists in pure Python.
+(And librt's BytesWriter, which compiled appends a byte natively; a bytearray in pure
+Python.)
 
 The firmware keeps its per-axis numbers (accumulators, increments, positions) in C
 arrays. Compiled (robox.native), `vec[i64]` and `vec[float]` are mypyc's packed
@@ -25,6 +27,7 @@ def _probe() -> None:
 COMPILED = not isinstance(_probe, types.FunctionType)
 
 if COMPILED:
+    from librt.strings import BytesWriter
     from librt.vecs import append, vec
 else:
 
@@ -41,9 +44,18 @@ else:
         v.append(item)
         return v
 
-try:  # a native 64-bit integer where the compiled core is built; otherwise int
-    from mypy_extensions import i64
-except ImportError:  # pragma: no cover - mypy_extensions comes with the build's tools
-    i64 = int  # type: ignore[misc,assignment]
+    class BytesWriter(bytearray):  # type: ignore[no-redef]
+        """librt.strings.BytesWriter in pure Python: bytes appended one by one."""
 
-__all__ = ["COMPILED", "append", "i64", "vec"]
+        def write(self, data: bytes) -> None:
+            self.extend(data)
+
+        def getvalue(self) -> bytes:
+            return bytes(self)
+
+try:  # native 64-bit and 8-bit integers where the compiled core is built; otherwise int
+    from mypy_extensions import i64, u8
+except ImportError:  # pragma: no cover - mypy_extensions comes with the build's tools
+    i64 = u8 = int  # type: ignore[misc,assignment]
+
+__all__ = ["COMPILED", "BytesWriter", "append", "i64", "u8", "vec"]
