@@ -3,9 +3,8 @@ build has them); the rest of the package's metadata is in pyproject.toml."""
 
 import os
 
-from robox_build import stage  # buildsys/, the build backend's own directory
+from robox_build import BuildExt, stage  # buildsys/, the build backend's own directory
 from setuptools import setup
-from setuptools.command.build_ext import build_ext
 
 # The firmware model's per-pass work: the loop, the step interrupt and block queue,
 # segmenting and positions, G-code, commands, EEPROMs, heaters, C arithmetic and line
@@ -61,12 +60,6 @@ def ext_modules():
                         target_dir=os.path.join("build", "native", "c"))
 
 
-class BuildExt(build_ext):
-    def run(self):
-        if not self.extensions:
-            return super().run()
-        with stage("compiled core 2/2: compiling the C (the long part)"):
-            return super().run()
 
 
 # a build directory of its own for each kind: a pure wheel never packs an extension that

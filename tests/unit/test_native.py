@@ -156,3 +156,50 @@ def test_packed_vectors_are_librts_where_compiled_and_lists_otherwise():
         assert type(floats).__name__ == "vec[float]" and type(ints).__name__ == "vec[i64]"
     else:
         assert type(floats) is list and type(ints) is list
+
+
+def _core_library() -> Path | None:
+    """The compiled core's shared library (the one that holds every module's functions),
+    where the install has one."""
+    import robox.firmware.carith as carith
+
+    if carith.__file__.endswith(".py"):
+        return None
+    site = Path(carith.__file__).resolve().parents[2]  # robox/firmware/carith.*
+    found = [p for p in site.glob("*__mypyc*") if p.suffix in (".so", ".pyd", ".dylib")]
+    return found[0] if len(found) == 1 else None
+
+
+@pytest.mark.skipif(_core_library() is None or sys.platform != "linux",
+                    reason="a compiled install's core library, loaded as ELF")
+def test_the_compiled_cores_functions_call_each_other_directly():
+    """setup.py's SPEED_FLAGS reached the build: the core's functions are not exported
+    (none can be replaced at load time, so the compiler called them directly and
+    inlined the small ones), while each module's PyInit_ function still is."""
+    import ctypes
+
+    library = ctypes.CDLL(str(_core_library()))
+    with pytest.raises(AttributeError):
+        library.CPyDef_carith___f32  # noqa: B018 (the lookup is the test)
+    shim = importlib.import_module("robox.firmware.carith").__file__
+    assert ctypes.CDLL(shim).PyInit_carith
+
+
+def test_the_build_keeps_only_the_flags_its_compiler_takes(monkeypatch):
+    """BuildExt asks this machine's C compiler: a flag it rejects or warns of is left
+    out; on Linux (GCC or Clang) every one of SPEED_FLAGS is taken."""
+    from setuptools import Distribution
+    from setuptools._distutils.ccompiler import new_compiler
+    from setuptools._distutils.sysconfig import customize_compiler
+
+    monkeypatch.syspath_prepend(str(ROOT / "buildsys"))
+    backend = importlib.import_module("robox_build")
+    if backend.compiler() is None:
+        pytest.skip("no C compiler")
+    command = backend.BuildExt(Distribution())
+    command.compiler = new_compiler()
+    customize_compiler(command.compiler)
+    assert command._takes("-O2")
+    assert not command._takes("-fno-such-option-robox")
+    if sys.platform == "linux":
+        assert [f for f in backend.SPEED_FLAGS if command._takes(f)] == backend.SPEED_FLAGS
