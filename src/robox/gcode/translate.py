@@ -174,9 +174,13 @@ def detect(head: bytes, tail: bytes = b"") -> Detected:
         if pattern.search(top):
             found.slicer = name
             break
-    if found.slicer in ("AutoMaker", "robox-cli") or re.search(rb"^Macro:", head, re.M) or \
+    # (each search below is made only where a plain find says it can match: the
+    # patterns' anchors and words make the scans slow on a large head)
+    if found.slicer in ("AutoMaker", "robox-cli") or \
+            (b"Macro:" in head and re.search(rb"^Macro:", head, re.M)) or \
             re.search(rb"; Volume of material - ", tail) or \
-            re.search(rb"^G[01]\b[^;\n]*\bB[-+.\d]", head, re.M | re.I):
+            (_may_have_b_word(head) and
+             re.search(rb"^G[01]\b[^;\n]*\bB[-+.\d]", head, re.M | re.I)):
         found.robox = True
     if re.search(rb"^\s*(M82|M83|G92\s+E)\b", head, re.M | re.I):
         found.marlin_e = True
@@ -186,13 +190,13 @@ def detect(head: bytes, tail: bytes = b"") -> Detected:
     if used:
         amounts = [_first_float(v) or 0.0 for v in used.group(1).split(b",")]
         found.tools = tuple(i for i, v in enumerate(amounts) if v > 0) or (0,)
-    elif re.search(rb"^T1\b", head, re.M):
+    elif b"T1" in head and re.search(rb"^T1\b", head, re.M):
         found.tools = (0, 1)
     if re.search(rb"^;FLAVOR:UltiGCode", top, re.M):
         found.volumetric = True
     settings = {}
     for raw in (head + b"\n" + tail).splitlines():
-        m = SETTING.match(raw)
+        m = SETTING.match(raw) if raw[:1] == b";" else None  # (its pattern starts so)
         if m:
             settings[m.group(1).strip().lower().replace(b" ", b"_")] = m.group(2)
     if settings.get(b"use_volumetric_e", b"0").strip() in (b"1", b"true"):
@@ -201,6 +205,27 @@ def detect(head: bytes, tail: bytes = b"") -> Detected:
         found.relative_e = True
     found.nozzle_diameter = _first_float(settings.get(b"nozzle_diameter"))
     return found
+
+
+def _may_have_b_word(text: bytes) -> bool:
+    """Whether `text` has a B or b after a byte that is not a word's (or at its start)
+    and before a sign, a point or a digit: what a move's B word needs, so where there is
+    none the search for one can be skipped."""
+    n: i64 = len(text)
+    for letter in (b"B", b"b"):
+        i: i64 = text.find(letter)
+        while i >= 0:
+            if i + 1 < n:
+                after = text[i + 1]
+                if after == 43 or after == 45 or after == 46 or 48 <= after <= 57:
+                    if i == 0:
+                        return True
+                    before = text[i - 1]
+                    if not (48 <= before <= 57 or 65 <= before <= 90 or 97 <= before <= 122
+                            or before == 95):
+                        return True
+            i = text.find(letter, i + 1)
+    return False
 
 
 def _first_float(value: bytes | None) -> float | None:
