@@ -117,6 +117,10 @@ def test_short_decimals_read_as_strtod_reads_them(digits, point, sign):
     # the double itself, before the cast to float hides most of a wrong rounding
     value = short_decimal(b"E" + text, 1)
     assert _same_double(value, c_value) if len(digits) <= 15 else math.isnan(value), text
+    # ended by `end` as by a slice there: what follows (a digit, an exponent) is not read
+    for after in (b"7", b"e5", b" Y1"):
+        bounded = short_decimal(b"E" + text + after, 1, True, 1 + len(text))
+        assert _same_double(bounded, short_decimal(b"E" + text, 1, True)), (text, after)
 
 
 @pytest.mark.parametrize("text, value, used", [

@@ -231,3 +231,46 @@ def test_a_words_value_is_what_float_reads_or_0(value):
 def test_a_lines_code_is_its_first_word_upper_cased(line):
     words = line.split(None, 1)
     assert valve_module._code(line) == (words[0].upper() if words else b"")
+
+
+_WORDS = st.sampled_from(["X", "Y", "Z", "E", "D", "B", "F", "S", "x", "e"])
+_VALUES = st.sampled_from(["1", "-2.5", "10.125", ".5", "0", "3.", "0.08", "1e2", "+4",
+                           "12.3456789012345678"])
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["G0", "G1", "g1"]),
+                          st.lists(st.tuples(st.sampled_from([" ", "  ", "   "]), _WORDS,
+                                             _VALUES), max_size=6)),
+                min_size=1, max_size=25))
+def test_a_move_read_in_one_pass_is_read_as_word_by_word(moves):
+    """The valve stage reads a job's move in one pass over its bytes (ValveStage._move:
+    its head a slice of the line, its numbers read in place); read word by word
+    (_move_spaced, for lines that pass does not take), every line written, every step
+    kept (each move's head, the code and axis words it is written anew with) and every
+    position is the same."""
+    from robox.formats.heads import head_valves
+
+    head = head_valves("RBX01-SM")
+    one, other = valve_module.ValveStage(head), valve_module.ValveStage(head)
+    out_one: list[bytes] = []
+    out_other: list[bytes] = []
+    for n, (code, words) in enumerate(moves):
+        line = (code + "".join(f"{blank}{w}{v}" for blank, w, v in words)).encode()
+        if n % 7 == 3:  # opens and closes the valve between moves, as jobs do
+            for stage, out in ((one, out_one), (other, out_other)):
+                stage.feed(b"G1 E0.4 F600", out)
+        one.feed(line, out_one)
+        if line[:2].upper() in (b"G0", b"G1") and line[2:3] in (b" ", b"\t", b""):
+            other._move_spaced(line, out_other)
+        else:
+            other.feed(line, out_other)
+        assert (one.x, one.y, one.word, one.feed_in_force) == \
+            (other.x, other.y, other.word, other.feed_in_force), line
+        assert [_step(s) for s in one.buf] == [_step(s) for s in other.buf], line
+    assert out_one + one.finish() == out_other + other.finish()
+
+
+def _step(step) -> tuple:
+    return (step.kind, step.line, step.sx, step.sy, step.x, step.y, step.e, step.b,
+            step.feed, step.feed_in_force, step.feature, step.rest, step.word, step.raw)

@@ -70,6 +70,7 @@ class Position:
     # per extruder (E, D): read at every extruding move and by the slip monitor's pass
     diameter: vec[float]
     multiplier: vec[float]
+    extruded_mm: vec[float]  # added to at every extruding line
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
@@ -98,7 +99,8 @@ class Position:
         self.levelling: list[tuple[float, float, float]] = []
         self.z_washout = 0.0
         self.what = NORMAL
-        self.extruded_mm = [0.0, 0.0]  # filament queued since power-up (a model statistic)
+        # filament queued since power-up (a model statistic)
+        self.extruded_mm = vec[float]([0.0, 0.0])
 
     # --------------------------------------------------------- parameters
     def _travel(self, axis: int) -> float:

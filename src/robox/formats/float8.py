@@ -86,18 +86,19 @@ def skip_blanks(text: bytes, i: i64) -> i64:
     return i
 
 
-def short_decimal(text: bytes, i: int, to_end: bool = False) -> float:
+def short_decimal(text: bytes, i: int, to_end: bool = False, end: i64 = -1) -> float:
     """strtod's value of a short plain decimal right at `i` (an optional sign, then at
     most 15 digits with at most one point among them, and no exponent or hexadecimal
     prefix after), NaN for anything else. Nearly every number a slicer writes, and
     every float8 a printer writes, is one. With `to_end` the number must end the
-    text: then it is also the value float() reads from text[i:].
+    text: then it is also the value float() reads from text[i:]. A text that ends
+    before text's own end is given by `end` (>= 0): text[:end] without the slice.
     The digits make a whole number below 2**53 and the point a power of ten up to
     1e15, both exact as doubles, so their quotient is the correctly rounded value
     strtod gives (the classic exact case of decimal conversion)."""
     # (native integers: compiled, the digits are added up without overflow checks; the
     # whole number stops growing past 16 digits, where the answer is NaN anyway)
-    n: i64 = len(text)
+    n: i64 = len(text) if end < 0 else end
     negative = False
     k: i64 = i
     if k < n and (text[k] == 45 or text[k] == 43):  # - or +

@@ -88,6 +88,13 @@ def _float(value: bytes) -> float:
         return 0.0
 
 
+def _float_in(line: bytes, start: i64, end: i64) -> float:
+    """_float(line[start:end]), made without the slice where the value is a short plain
+    decimal (nearly every one)."""
+    plain = short_decimal(line, start, True, end)
+    return plain if plain == plain else _float(line[start:end])
+
+
 def _code(line: bytes) -> bytes:
     """The line's first word, upper-cased (b"" for none): line.split(None, 1)[0].upper()
     found in one native loop (compiled, the two method calls cost more than the rest of
@@ -260,22 +267,25 @@ class ValveStage:
                 return
             if upper == 0x58 or upper == 0x59 or upper == 0x5A:  # X, Y, Z
                 if upper == 0x58:
-                    x = _float(line[start + 1:i])
+                    x = _float_in(line, start + 1, i)
                     has_xy = True
                 elif upper == 0x59:
-                    y = _float(line[start + 1:i])
+                    y = _float_in(line, start + 1, i)
                     has_xy = True
                 if tidy and start == head_end + 1:
                     head_end = i
-                else:
+                    continue
+                if tidy:  # the words so far, one blank apart after the code: one part
                     tidy = False
+                    if head_end > 2:
+                        head_parts.append(line[3:head_end])
                 head_parts.append(line[start:i])
                 continue
             if upper == 0x42:  # B
-                b = _float(line[start + 1:i])
+                b = _float_in(line, start + 1, i)
                 has_b = True
             elif upper == 0x45 or upper == 0x44:  # E, D
-                e = _float(line[start + 1:i])
+                e = _float_in(line, start + 1, i)
                 has_e = True
                 self.word = b" D" if upper == 0x44 else b" E"
             elif upper == 0x46:  # F
