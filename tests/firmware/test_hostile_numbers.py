@@ -68,6 +68,8 @@ def test_float_sums_taken_in_bulk_equal_one_addition_at_a_time():
             expected = f32(expected + step)
         assert carith.f32_accumulate(x, step, count) == expected, (x, step, count)
     assert carith.f32_accumulate(0.0, 2.0, 4_000_000_000) == 2.0 ** 25  # 2 + 2**25 is 2**25
+    # a sum that does not move still takes the sum's sign: -0.0 + 0.0 is 0.0
+    assert math.copysign(1.0, carith.f32_accumulate(-0.0, 0.0, 3)) == 1.0
 
 
 def test_arm_conversions_saturate_and_take_nan_as_zero():

@@ -180,7 +180,7 @@ def f32_accumulate(x: float, step: float, count: int) -> float:
     while count > 0:
         y = f32(x + step)
         if y != y or math.isinf(y) or y == x:
-            return y if y != y or math.isinf(y) else x
+            return y  # (stuck: y is x, but for a zero's sign, -0.0 + 0.0 being 0.0)
         if count >= 8:
             y2 = f32(y + step)
             y3 = f32(y2 + step)
