@@ -60,8 +60,6 @@ def ext_modules():
                         target_dir=os.path.join("build", "native", "c"))
 
 
-
-
 # a build directory of its own for each kind: a pure wheel never packs an extension that
 # a compiled build left in build/lib
 setup(ext_modules=ext_modules(), cmdclass={"build_ext": BuildExt},
