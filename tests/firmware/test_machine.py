@@ -233,6 +233,38 @@ def test_a_thermistor_fault_sets_its_error_and_turns_that_heater_off(wire):
     assert wire.fw.heaters.nozzle[0].mode == 1
 
 
+def test_a_nozzle_thermistor_fault_is_that_nozzles_after_20_s(wire):
+    run_lines(wire, "M104 S200", "M140 S60")
+    wire.printer.hw.machine.heaters["nozzle0"].thermistor_ok = False
+    wire.printer.run_until(lambda: False, 15)
+    assert not wire.fw.errors.is_set(ErrorBit.NOZZLE0_THERMISTOR)
+    wire.printer.run_until(lambda: False, 10)
+    assert wire.fw.errors.is_set(ErrorBit.NOZZLE0_THERMISTOR)
+    assert not wire.fw.errors.is_set(ErrorBit.NOZZLE1_THERMISTOR)
+    assert not wire.fw.errors.is_set(ErrorBit.BED_THERMISTOR)
+    assert wire.fw.heaters.nozzle[0].mode == 0 and wire.fw.heaters.bed.mode == 1
+
+
+def test_a_nozzle_target_is_held_to_the_limit_of_the_head_fitted_now(wire):
+    """The limit follows the head's type as the EEPROM reads it: another head fitted
+    (an RBXDV-S1 allows 300 degrees, an RBX01-SM 260), another limit."""
+    from robox.hardware.eeprom import EepromChip
+
+    def fit(type_code: str) -> None:
+        bus = wire.printer.hw.eeprom_bus
+        bus.insert(EepromIndex.HEAD, None)
+        wire.printer.run_until(lambda: wire.fw.eeproms.status(EepromIndex.HEAD) == 0, 5.0)
+        bus.insert(EepromIndex.HEAD, EepromChip(images.head_eeprom(True, type_code),
+                                                wire.printer.hw.clock))
+        wire.printer.run_until(lambda: wire.fw.eeproms.status(EepromIndex.HEAD) == 2, 5.0)
+
+    for type_code, limit in (("RBXDV-S1", 300.0), ("RBX01-SM", 260.0), ("RBXDV-S1", 300.0)):
+        fit(type_code)
+        run_lines(wire, "M104 S290")
+        wire.printer.run_until(lambda: False, 2.0)  # a sample or two
+        assert wire.fw.heaters.nozzle[0].target[0] == min(290.0, limit), type_code
+
+
 def test_losing_the_head_eeprom_cuts_head_power(wire):
     run_lines(wire, "M104 S200", "M140 S60")
     wire.printer.hw.eeprom_bus.sockets[EepromIndex.HEAD].unplug()

@@ -137,6 +137,8 @@ class Eeproms:
         self.on_lost: list[Callable[[EepromIndex], None]] = []
         #: The firmware that owns this object (None when run alone, as by `eeprom set`).
         self.firmware: Firmware | None = None
+        self._limit_of: bytes | None = None  # the head type head_max_temperature last read
+        self._limit = 0.0
         self.initialise()
 
     def initialise(self) -> None:
@@ -364,7 +366,12 @@ class Eeproms:
 
     def head_max_temperature(self) -> float:
         name = self._head_type()
-        return max_temperature(name if name is not None else b"")
+        key = name if name is not None else b""
+        # (asked at every heater sample: the type's limit is kept for the type last seen)
+        if key != self._limit_of:
+            self._limit = max_temperature(key)
+            self._limit_of = key
+        return self._limit
 
     def get_float(self, index: EepromIndex, name: str) -> float:
         f = field_named(KIND_OF[index], name)

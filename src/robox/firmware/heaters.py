@@ -55,6 +55,9 @@ HIGH_TEMP_NOZZLE_APPROACH = (434.0, 84.0)
 # the firmware's default controller gains (kp, ki, kd)
 GAINS: Final = {"nozzle": (0.08, 0.012, 0.55), "bed": (0.05, 0.006, 1.4),
                 "ambient": (0.1, 0.0, 0.0)}
+# the errors of a lost thermistor: the bed's, nozzle 0's, nozzle 1's
+_THERMISTOR_ERRORS: Final = [ErrorBit.BED_THERMISTOR, ErrorBit.NOZZLE0_THERMISTOR,
+                             ErrorBit.NOZZLE1_THERMISTOR]
 NOT_WAITING: Final = 0
 BED_COOLING: Final = 1
 BED_AT_TEMPERATURE: Final = 2
@@ -221,16 +224,22 @@ class Heaters:
             self.bed_got_to = -FLT_MAX
 
     def _check_thermistors(self, now: float) -> None:
-        checks = ((self.bed, 60.0, ErrorBit.BED_THERMISTOR, False),
-                  (self.nozzle[0], 20.0, ErrorBit.NOZZLE0_THERMISTOR, False),
-                  (self.nozzle[1], 20.0, ErrorBit.NOZZLE1_THERMISTOR,
-                   self._eeproms.head_has_two_fans()))
-        for c, after, bit, exempt in checks:
-            if c.pwm_duty != 255 or exempt:
-                c.fault_since = now
-            elif now - c.fault_since >= after and c.measured < 20.0:
-                self.fw.errors.set(bit)
-                c.mode = 0
+        # (each by its own call: compiled, no tuples and no enum member looked up by
+        # name at every sample)
+        two_fans = self._eeproms.head_has_two_fans()
+        self._check_thermistor(self.bed, now, 60.0, False, 0)
+        self._check_thermistor(self.nozzle[0], now, 20.0, False, 1)
+        self._check_thermistor(self.nozzle[1], now, 20.0, two_fans, 2)
+
+    def _check_thermistor(self, c: Controller, now: float, after: float, exempt: bool,
+                          which: int) -> None:
+        """A heater at full power that still reads below 20 degrees for `after` seconds
+        has lost its thermistor: its error is raised and the heater switched off."""
+        if c.pwm_duty != 255 or exempt:
+            c.fault_since = now
+        elif now - c.fault_since >= after and c.measured < 20.0:
+            self.fw.errors.set(_THERMISTOR_ERRORS[which])
+            c.mode = 0
 
     def _drive_plants(self) -> None:
         """The PWM outputs reach the plants; the head's only while it has power."""
