@@ -221,28 +221,25 @@ def test_set_d_filament_info(wire):
                                                               pytest.approx(0.9)]
 
 
-def test_a_thermistor_fault_sets_its_error_and_turns_that_heater_off(wire):
-    run_lines(wire, "M104 S200", "M140 S60")
-    wire.printer.hw.machine.heaters["bed"].thermistor_ok = False
-    # it reads cold, so the bed runs at full power; after 60 s of that the fault is seen
-    wire.printer.run_until(lambda: False, 55)
-    assert not wire.fw.errors.is_set(ErrorBit.BED_THERMISTOR)
-    wire.printer.run_until(lambda: False, 10)
-    assert wire.fw.errors.is_set(ErrorBit.BED_THERMISTOR)
-    assert wire.fw.heaters.bed.mode == 0
-    assert wire.fw.heaters.nozzle[0].mode == 1
+_THERMISTORS = {"bed": ErrorBit.BED_THERMISTOR, "nozzle0": ErrorBit.NOZZLE0_THERMISTOR,
+                "nozzle1": ErrorBit.NOZZLE1_THERMISTOR}
 
 
-def test_a_nozzle_thermistor_fault_is_that_nozzles_after_20_s(wire):
+@pytest.mark.parametrize("plant, seen_after_s, other", [("bed", 60, "nozzle0"),
+                                                        ("nozzle0", 20, "bed")])
+def test_a_thermistor_fault_sets_its_error_and_turns_that_heater_off(wire, plant,
+                                                                     seen_after_s, other):
+    """A lost thermistor reads cold, so its heater runs at full power; after
+    `seen_after_s` of that the fault is seen: that heater's error, that heater off."""
     run_lines(wire, "M104 S200", "M140 S60")
-    wire.printer.hw.machine.heaters["nozzle0"].thermistor_ok = False
-    wire.printer.run_until(lambda: False, 15)
-    assert not wire.fw.errors.is_set(ErrorBit.NOZZLE0_THERMISTOR)
+    wire.printer.hw.machine.heaters[plant].thermistor_ok = False
+    heaters = wire.fw.heaters
+    controller = {"bed": heaters.bed, "nozzle0": heaters.nozzle[0]}
+    wire.printer.run_until(lambda: False, seen_after_s - 5)
+    assert not wire.fw.errors.is_set(_THERMISTORS[plant])
     wire.printer.run_until(lambda: False, 10)
-    assert wire.fw.errors.is_set(ErrorBit.NOZZLE0_THERMISTOR)
-    assert not wire.fw.errors.is_set(ErrorBit.NOZZLE1_THERMISTOR)
-    assert not wire.fw.errors.is_set(ErrorBit.BED_THERMISTOR)
-    assert wire.fw.heaters.nozzle[0].mode == 0 and wire.fw.heaters.bed.mode == 1
+    assert [name for name, bit in _THERMISTORS.items() if wire.fw.errors.is_set(bit)] == [plant]
+    assert controller[plant].mode == 0 and controller[other].mode == 1
 
 
 def test_a_nozzle_target_is_held_to_the_limit_of_the_head_fitted_now(wire):
