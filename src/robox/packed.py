@@ -45,10 +45,8 @@ else:
         return v
 
     class BytesWriter(bytearray):  # type: ignore[no-redef]
-        """librt.strings.BytesWriter in pure Python: bytes appended one by one."""
-
-        def write(self, data: bytes) -> None:
-            self.extend(data)
+        """librt.strings.BytesWriter in pure Python, as far as the project uses it:
+        bytes appended one by one, then getvalue()."""
 
         def getvalue(self) -> bytes:
             return bytes(self)
