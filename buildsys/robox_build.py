@@ -104,6 +104,32 @@ def stage(text: str, tick_s: float = 30.0):
 # which Python's headers keep visible). They change no arithmetic: no FMA, no fast math.
 SPEED_FLAGS = ["-fno-semantic-interposition", "-fvisibility=hidden", "-fno-plt"]
 
+# Compiled functions whose whole work is what one C expression does and mypyc cannot
+# write: the build gives them that expression as their body, in a copy of the C mypyc
+# wrote (where the definition is not found, mypyc's compiled Python body stays, and a
+# line says so). carith.f32, a double rounded to a C float, runs a dozen times a move;
+# C's conversion is one instruction that rounds as the printer's soft floats do (to
+# nearest, ties to even, overflow to an infinity).
+C_BODIES = {
+    "double CPyDef_carith___f32(double cpy_r_value)": "return (double)(float)cpy_r_value;",
+}
+
+
+def replace_bodies(text: str, bodies: dict[str, str]) -> tuple[str, list[str]]:
+    """`text` (C as mypyc writes it: a definition's signature and `{` on one line, its
+    closing `}` alone at the start of a line) with the body of each function whose
+    signature `bodies` names replaced by the one given; and the signatures not found."""
+    missing = []
+    for signature, body in bodies.items():
+        start = text.find(f"\n{signature} {{\n")
+        end = text.find("\n}\n", start) if start >= 0 else -1
+        if end < 0:
+            missing.append(signature)
+            continue
+        opened = start + len(signature) + 3  # past "\n", the signature and " {"
+        text = f"{text[:opened]}\n    {body}{text[end:]}"
+    return text, missing
+
 
 class BuildExt(build_ext):
     """setup.py's build_ext: its stage on the terminal, and SPEED_FLAGS where the
@@ -117,9 +143,38 @@ class BuildExt(build_ext):
 
     def build_extensions(self):
         flags = [flag for flag in SPEED_FLAGS if self._takes(flag)]
+        missing = set(C_BODIES)
         for ext in self.extensions:
+            ext.sources = [self._with_bodies(source, missing) for source in ext.sources]
             ext.extra_compile_args = [*ext.extra_compile_args, *flags]
+        for signature in sorted(missing):
+            _say(f"kept mypyc's own body for {signature.split('(')[0].split()[-1]} (its "
+                 "definition was not found as expected in the C mypyc wrote)")
         super().build_extensions()
+
+    @staticmethod
+    def _with_bodies(source: str, missing: set[str]) -> str:
+        """The C file to compile for `source`: itself, or where it defines a function of
+        C_BODIES a copy beside it with C_BODIES' bodies (written only when it changes, so
+        an unchanged core is not compiled again). Signatures found leave `missing`."""
+        if not source.endswith(".c"):
+            return source
+        with open(source, encoding="utf-8") as f:
+            text = f.read()
+        changed, absent = replace_bodies(text, C_BODIES)
+        missing.intersection_update(absent)
+        if changed == text:
+            return source
+        copy = source[:-2] + "-bodies.c"
+        try:
+            with open(copy, encoding="utf-8") as f:
+                current = f.read()
+        except OSError:
+            current = None
+        if current != changed:
+            with open(copy, "w", encoding="utf-8") as f:
+                f.write(changed)
+        return copy
 
     def _takes(self, flag: str) -> bool:
         """Whether this build's compiler accepts `flag` without a warning."""

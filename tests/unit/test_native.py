@@ -124,8 +124,9 @@ def _float_cases() -> list[float]:
 
 
 def test_the_native_float_rounding_is_the_struct_modules():
-    """carith.f32's own body (native double arithmetic when compiled; interpreted, the name
-    is struct_f32) rounds every case as struct's "<f" conversion does, sign and all."""
+    """carith.f32's own body (compiled, the C conversion the build gives it; interpreted,
+    the double arithmetic its Python spells out, though the name f32 is struct_f32 there)
+    rounds every case as struct's "<f" conversion does, sign and all."""
     import math
 
     from robox.firmware.carith import native_f32, struct_f32
@@ -203,3 +204,78 @@ def test_the_build_keeps_only_the_flags_its_compiler_takes(monkeypatch):
     assert not command._takes("-fno-such-option-robox")
     if sys.platform == "linux":
         assert [f for f in backend.SPEED_FLAGS if command._takes(f)] == backend.SPEED_FLAGS
+
+
+# C shaped as mypyc writes a module's functions: carith.f32's definition (its real
+# signature; a body that only hands back its argument, unrounded) and one whose name
+# begins with f32's
+_MYPYC_SHAPED = """\
+#include <math.h>
+
+double CPyDef_carith___f32(double cpy_r_value) {
+    char cpy_r_r0;
+    cpy_r_r0 = cpy_r_value == 0.0;
+    if (!cpy_r_r0) goto CPyL2;
+    return cpy_r_value;
+CPyL2: ;
+    return cpy_r_value;
+}
+
+double CPyDef_carith___f32_accumulate(double cpy_r_x, double cpy_r_step) {
+    return cpy_r_x + cpy_r_step;
+}
+"""
+
+
+def test_the_build_gives_f32_cs_own_conversion_and_it_rounds_as_struct(tmp_path,
+                                                                       monkeypatch):
+    """BuildExt compiles a copy of mypyc's C in which carith.f32's body is C's float
+    conversion; compiled here, that body rounds every case as struct's "<f" does, the
+    function whose name begins the same is left as it was, and an unchanged copy is not
+    written again (so an unchanged core is not compiled again)."""
+    import ctypes
+    import math
+
+    from setuptools._distutils.ccompiler import new_compiler
+    from setuptools._distutils.sysconfig import customize_compiler
+
+    from robox.firmware.carith import struct_f32
+
+    monkeypatch.syspath_prepend(str(ROOT / "buildsys"))
+    backend = importlib.import_module("robox_build")
+    if backend.compiler() is None:
+        pytest.skip("no C compiler")
+    source = tmp_path / "__native_core.c"
+    source.write_text(_MYPYC_SHAPED)
+    missing = set(backend.C_BODIES)
+    copy = backend.BuildExt._with_bodies(str(source), missing)
+    assert copy != str(source) and not missing
+    assert source.read_text() == _MYPYC_SHAPED  # mypyc's own file is left alone
+    text = Path(copy).read_text()
+    assert "double CPyDef_carith___f32(double cpy_r_value) {\n" \
+           "    return (double)(float)cpy_r_value;\n}\n" in text
+    assert text.endswith(_MYPYC_SHAPED[_MYPYC_SHAPED.index("\ndouble CPyDef_carith___f32_"):])
+    written = os.stat(copy).st_mtime_ns
+    os.utime(copy, ns=(written - 10**9, written - 10**9))
+    assert backend.BuildExt._with_bodies(str(source), set()) == copy
+    assert os.stat(copy).st_mtime_ns == written - 10**9
+
+    plain = tmp_path / "plain.c"
+    plain.write_text("int probe(void) { return 0; }\n")
+    still = set(backend.C_BODIES)
+    assert backend.BuildExt._with_bodies(str(plain), still) == str(plain)
+    assert still == set(backend.C_BODIES)
+
+    compiler = new_compiler()
+    customize_compiler(compiler)
+    objects = compiler.compile([copy], output_dir=str(tmp_path), extra_postargs=["-fPIC"])
+    library = tmp_path / "f32.so"
+    compiler.link_shared_object(objects, str(library))
+    f32 = ctypes.CDLL(str(library)).CPyDef_carith___f32
+    f32.restype, f32.argtypes = ctypes.c_double, [ctypes.c_double]
+
+    def key(v: float) -> tuple:
+        return ("nan",) if v != v else (v, math.copysign(1.0, v))
+
+    cases = _float_cases()
+    assert [key(f32(v)) for v in cases] == [key(struct_f32(v)) for v in cases]

@@ -71,11 +71,13 @@ _F32_BIG: Final = 1.7014118346046923e38  # 2**127
 def f32(value: float) -> float:
     """`value` rounded to a C float (overflow gives an infinity, as C does).
 
-    Compiled (robox.native), in native double arithmetic: Veltkamp's split takes a
-    normal number's nearest 24-bit neighbour; at a tie (the other neighbour, as far on
-    the other side, has 24 bits too) the even one is taken, the one that fits in 23
-    bits. A subnormal, a huge, infinite or NaN value goes to struct_f32. Interpreted,
-    the name is struct_f32."""
+    Compiled (robox.native), the build gives this function C's own conversion,
+    `(double)(float)value`, as its body (buildsys/robox_build.py, C_BODIES). The body
+    here is what mypyc compiles where that is not done, in native double arithmetic:
+    Veltkamp's split takes a normal number's nearest 24-bit neighbour; at a tie (the
+    other neighbour, as far on the other side, has 24 bits too) the even one is taken,
+    the one that fits in 23 bits. A subnormal, a huge, infinite or NaN value goes to
+    struct_f32. Interpreted, the name is struct_f32."""
     if value == 0.0:
         return value  # either zero, its sign kept
     a = abs(value)
@@ -95,7 +97,7 @@ def f32(value: float) -> float:
     return struct_f32(value)
 
 
-native_f32 = f32  # the body above, whichever runs (for the tests)
+native_f32 = f32  # for the tests: compiled, C's conversion; interpreted, the body above
 
 
 def to_long(value: float) -> int:
