@@ -295,6 +295,10 @@ def test_away_from_a_terminal_send_job_wait_says_how_far_it_got(tmp_path, monkey
                           for line in prints)
 
 
+def _sigint_default() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_during_an_upload_says_what_it_left_and_resume_goes_on(tmp_path):
     """SIGINT mid-upload to a served printer (paced, so the upload takes a few seconds):
     one line saying where it stopped and how to go on, status 130; --resume finishes it."""
@@ -307,8 +311,11 @@ def test_ctrl_c_during_an_upload_says_what_it_left_and_resume_goes_on(tmp_path):
     with served(state, speed=1) as pty:
         cli_ = [sys.executable, "-m", "robox.cli", "--device", f"serial:{pty}", "send-job",
                 str(job), "--raw", "--id", "big"]
+        # SIGINT's default action in the command, as a terminal's foreground job has it:
+        # a child inherits an ignored SIGINT (the tests run as a background job of a
+        # shell without job control, say), and Python then leaves it ignored
         sending = subprocess.Popen(cli_, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                   env=env)
+                                   env=env, preexec_fn=_sigint_default)
         time.sleep(2.5)  # started (even on a loaded machine), and well short of the end
         sending.send_signal(signal.SIGINT)
         _, err = sending.communicate(timeout=60)
