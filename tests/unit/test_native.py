@@ -210,7 +210,7 @@ def test_the_build_keeps_only_the_flags_its_compiler_takes(monkeypatch):
 # signature; a body that only hands back its argument, unrounded) and one whose name
 # begins with f32's
 _MYPYC_SHAPED = """\
-#include <math.h>
+/* the functions of a compiled module, as mypyc writes them */
 
 double CPyDef_carith___f32(double cpy_r_value) {
     char cpy_r_r0;
