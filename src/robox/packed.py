@@ -1,6 +1,6 @@
 """Fixed-size vectors of native numbers for the compiled core; plain lists in pure Python.
 (And librt's BytesWriter, which compiled appends a byte natively; a bytearray in pure
-Python.)
+Python. And a vector of floats to and from bytes: `floats_to_bytes`, `floats_from_bytes`.)
 
 The firmware keeps its per-axis numbers (accumulators, increments, positions) in C
 arrays. Compiled (robox.native), `vec[i64]` and `vec[float]` are mypyc's packed
@@ -16,7 +16,9 @@ module's functions are not Python function objects).
 
 from __future__ import annotations
 
+import sys
 import types
+from array import array
 from typing import Any
 
 
@@ -27,7 +29,7 @@ def _probe() -> None:
 COMPILED = not isinstance(_probe, types.FunctionType)
 
 if COMPILED:
-    from librt.strings import BytesWriter
+    from librt.strings import BytesWriter, read_f64_le, write_f64_le
     from librt.vecs import append, vec
 else:
 
@@ -56,4 +58,38 @@ try:  # native 64-bit and 8-bit integers where the compiled core is built; other
 except ImportError:  # pragma: no cover - mypy_extensions comes with the build's tools
     i64 = u8 = int  # type: ignore[misc,assignment]
 
-__all__ = ["COMPILED", "BytesWriter", "append", "i64", "u8", "vec"]
+
+
+def floats_to_bytes(values: vec[float]) -> bytes:
+    """The floats as little-endian doubles, 8 bytes each (compiled, each written natively
+    where an array made of a vector boxes every item and parses it back)."""
+    if COMPILED:
+        out = BytesWriter()
+        for value in values:
+            write_f64_le(out, value)
+        return out.getvalue()
+    doubles = array("d", values)
+    if sys.byteorder == "big":  # pragma: no cover - the machines built for are little-endian
+        doubles.byteswap()
+    return doubles.tobytes()
+
+
+def floats_from_bytes(data: bytes) -> vec[float]:
+    """`floats_to_bytes`' floats back (its length a multiple of 8)."""
+    if COMPILED:
+        out = vec[float]()
+        at: i64 = 0
+        end: i64 = len(data) - 7
+        while at < end:
+            out = append(out, read_f64_le(data, at))
+            at += 8
+        return out
+    doubles = array("d")
+    doubles.frombytes(data)
+    if sys.byteorder == "big":  # pragma: no cover
+        doubles.byteswap()
+    return vec[float](doubles.tolist())
+
+
+__all__ = ["COMPILED", "BytesWriter", "append", "floats_from_bytes", "floats_to_bytes", "i64",
+           "u8", "vec"]

@@ -159,6 +159,26 @@ def test_packed_vectors_are_librts_where_compiled_and_lists_otherwise():
         assert type(floats) is list and type(ints) is list
 
 
+def test_a_vector_of_floats_goes_to_little_endian_doubles_and_back():
+    """floats_to_bytes writes each float as struct's "<d" does, on either build, and
+    floats_from_bytes reads those bytes back bit for bit (a zero's sign, infinities, a
+    NaN's payload, the least subnormal); an empty vector is no bytes."""
+    import struct
+
+    from robox import packed
+
+    values = [0.5, -0.0, 1e300, float("inf"), -float("inf"), 5e-324, -1.0 / 3.0,
+              struct.unpack("<d", bytes.fromhex("0100000000f8ff7f"))[0], 123456789.125]
+    data = packed.floats_to_bytes(packed.vec[float](values))
+    assert data == struct.pack(f"<{len(values)}d", *values)
+    back = packed.floats_from_bytes(data)
+    assert len(back) == len(values)
+    assert [struct.pack("<d", float(x)) for x in back] == \
+        [struct.pack("<d", v) for v in values]
+    assert packed.floats_to_bytes(packed.vec[float]()) == b""
+    assert len(packed.floats_from_bytes(b"")) == 0
+
+
 def _core_library() -> Path | None:
     """The compiled core's shared library (the one that holds every module's functions),
     where the install has one."""

@@ -49,13 +49,12 @@ columns, packed vectors of native floats (`rows` shows them by name).
 from __future__ import annotations
 
 import math
-from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Final
 
 from robox.formats.heads import E_FEED, HeadValves
-from robox.packed import append, i64, vec
+from robox.packed import append, floats_from_bytes, floats_to_bytes, i64, vec
 
 if TYPE_CHECKING:
     from robox.hardware.machine import Machine
@@ -453,7 +452,7 @@ class Deposition:
         with open(self.spill, "ab") as f:
             f.write(n.to_bytes(8, "little"))
             for column in columns:
-                array("d", column).tofile(f)
+                f.write(floats_to_bytes(column))
         self._empty_columns()
         self.spilled += n
 
@@ -467,9 +466,10 @@ class Deposition:
                     n = int.from_bytes(header, "little")
                     columns: list[vec[float]] = []
                     for _ in COLUMNS:
-                        column = array("d")
-                        column.fromfile(f, n)
-                        columns.append(vec[float](column.tolist()))
+                        data = f.read(8 * n)
+                        if len(data) != 8 * n:
+                            raise EOFError(f"{self.spill}: the record ends inside a chunk")
+                        columns.append(floats_from_bytes(data))
                     yield columns
         yield self._column_list()
         if self._has_last:
