@@ -671,6 +671,41 @@ def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end
 _ramp_motion: dict = {}
 
 
+@settings(max_examples=2000, deadline=None)
+@given(length=st.one_of(st.integers(0, 3000), st.integers(0x007FFF00, 1 << 31)),
+       speed=st.integers(0, 0xFFFFF), end_speed=st.one_of(st.integers(0, 300),
+                                                          st.integers(0, 0x3FFFF)),
+       a=st.integers(1, 255), offset=st.integers(-2, 2),
+       near=st.sampled_from(["speed", "root", "cruise", "floor", "any"]),
+       anywhere=st.integers(0, 1 << 34))
+# at the floor with cruise below it, and with the root at zero (x = 0) and at one (x = 1)
+@example(length=1, speed=1, end_speed=0, a=1, offset=0, near="floor", anywhere=0)
+@example(length=1, speed=9, end_speed=0, a=1, offset=0, near="floor", anywhere=0)
+@example(length=1, speed=9, end_speed=4, a=1, offset=0, near="floor", anywhere=0)
+# the radicand a square at each bound: at cruise with x = 400 = 20^2 and cruise 20 << 14;
+# below cruise at 20 << 14 with x = 20^2, with x = 21^2 - 1, and with x = 21^2
+@example(length=101, speed=80, end_speed=0, a=2, offset=0, near="cruise", anywhere=0)
+@example(length=101, speed=100, end_speed=0, a=2, offset=0, near="root", anywhere=0)
+@example(length=111, speed=100, end_speed=0, a=2, offset=0, near="root", anywhere=0)
+@example(length=1, speed=100, end_speed=84, a=1, offset=0, near="any", anywhere=20 << 14)
+def test_a_run_of_steady_interrupts_is_found_without_the_square_root(
+        length, speed, end_speed, a, offset, near, anywhere):
+    """Whether the interrupt leaves the speed where it is, worked out from the radicand
+    against squares, agrees with the interrupt's arithmetic taken literally (the root
+    taken, shifted, capped by cruise, floored) for speeds at, beside and far from each
+    of the values it can settle on."""
+    blk = motion_module.Block()
+    blk.length, blk.speed, blk.end_speed = length, speed, end_speed
+    radicand = ((min(max(length - 1, -1), 0x00800000) << 1) * a
+                + ((end_speed * end_speed) >> 4)) & 0xFFFFFFFF
+    root = math.isqrt(radicand)
+    floor_speed = 2 << 12
+    settles = max(floor_speed, min(root << 14, speed << 12))
+    s = {"speed": settles, "root": root << 14, "cruise": speed << 12,
+         "floor": floor_speed, "any": anywhere}[near] + offset
+    assert motion_module._holds(blk, a, s) == (settles == s)
+
+
 def test_the_interrupts_acceleration_follows_every_change_of_the_parameter(wire):
     """The step interrupt reads pa.acceleration at every run of interrupts; the model
     keeps it as a native integer, which must follow each way the parameter changes:

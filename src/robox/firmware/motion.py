@@ -110,15 +110,48 @@ def _max_speed_step(acceleration: int, allowable_error: int) -> int:
     return int(max(1.0, min(4294967296.0, v)))
 
 
-def _braking_root(blk: Block, a: i64) -> i64:
-    """The interrupt's square root (in speed units, before its shift to the x4k scale):
-    the speed from which the block can still slow to its end speed over the length
-    left, less one, at most 2^23 (the radicand wraps at 32 bits, as the C's does)."""
+def _braking_radicand(blk: Block, a: i64) -> i64:
+    """What the interrupt takes the square root of: twice the acceleration by the length
+    left, less one, at most 2^23, and the end speed's square over 16, wrapped at 32 bits
+    as the C's sum is."""
     capped: i64 = blk.length - 1
     if capped > 0x00800000:
         capped = 0x00800000
     end_speed: i64 = blk.end_speed
-    return isqrt32(((capped << 1) * a + ((end_speed * end_speed) >> 4)) & U32)
+    return ((capped << 1) * a + ((end_speed * end_speed) >> 4)) & U32
+
+
+def _braking_root(blk: Block, a: i64) -> i64:
+    """The interrupt's square root (in speed units, before its shift to the x4k scale):
+    the speed from which the block can still slow to its end speed over the length
+    left."""
+    return isqrt32(_braking_radicand(blk, a))
+
+
+def _holds(blk: Block, a: i64, s: i64) -> bool:
+    """Whether the interrupt's next speed, max(floor, min(root << 14, cruise)), is `s`
+    (the x4k scale) again: worked out from the radicand x against squares, not from its
+    root r = isqrt(x), as r <= m holds exactly when x < (m + 1)^2."""
+    floor_speed: i64 = MIN_SPEED << 12
+    top: i64 = blk.speed << 12
+    if s < floor_speed:
+        return False
+    x = _braking_radicand(blk, a)
+    if s == floor_speed:  # the lesser of the two at most the floor: r << 14 <= floor
+        if top <= floor_speed:
+            return True
+        m: i64 = floor_speed >> 14
+        return x < (m + 1) * (m + 1)
+    if top < s:
+        return False
+    if top == s:  # r << 14 >= s: r at least s / 2^14, rounded up
+        c: i64 = (s + 0x3FFF) >> 14
+        return x >= c * c
+    # below cruise: r << 14 is s itself
+    if s & 0x3FFF:
+        return False
+    r: i64 = s >> 14
+    return r * r <= x < (r + 1) * (r + 1)
 
 
 class Motion:
@@ -965,8 +998,7 @@ class Motion:
         length = blk.length
         if length <= 1:
             return 1
-        v = _braking_root(blk, a)
-        if max(MIN_SPEED << 12, min(v << 14, blk.speed << 12)) != s:
+        if not _holds(blk, a, s):
             return 1
         if counting:
             if s == MIN_SPEED << 12:
