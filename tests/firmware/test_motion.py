@@ -671,6 +671,55 @@ def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end
 _ramp_motion: dict = {}
 
 
+_HEIGHTS = st.one_of(st.integers(-(1 << 22), 1 << 22), st.integers(607990, 608010))
+_CARRIAGE = st.one_of(st.integers(-40000, 70000), st.integers(-5025, -5010),
+                      st.integers(33615, 33635))
+
+
+@settings(max_examples=1000, deadline=None)
+@given(za=_HEIGHTS, zb=_HEIGHTS, x=_CARRIAGE)
+@example(za=607998, zb=607998, x=-5018)  # the quick answer's corners, a step in
+@example(za=607998, zb=607999, x=33624)
+@example(za=-(1 << 22), zb=607998, x=-5019)  # just outside the span: worked out
+def test_the_z_top_pin_reads_as_the_gantry_lines_height_says(za, zb, x):
+    """z_top_pin() (which answers at once where both leadscrews are below the switch
+    and the carriage between them) reads 0 exactly where the gantry line's height at
+    the carriage is at or above the switch, a tilted gantry and the span's edges
+    included."""
+    from robox.hardware import machine
+    from robox.hardware.machine import Z_TOP_STEPS, Machine
+
+    # its quick answer's bounds: a step inside the span and a step below the switch
+    bounds = (machine.SPAN_X_LO, machine.SPAN_X_HI, machine.BELOW_TOP)
+    assert bounds == (math.ceil(machine.ZA_X_MM * machine.X_STEPS_PER_MM) + 1,
+                      math.floor(machine.ZB_X_MM * machine.X_STEPS_PER_MM) - 1,
+                      math.floor(Z_TOP_STEPS) - 1)
+    m = Machine()
+    m.za, m.zb, m.x = za, zb, x
+    assert m.z_top_pin() == int(m.nozzle_height() < Z_TOP_STEPS)
+    za_mm, zb_mm, x_mm = za / 6400.0, zb / 6400.0, x / 133.7
+    height_mm = za_mm + (zb_mm - za_mm) * (x_mm + 37.546) / (251.5 + 37.546)
+    if abs(height_mm - 95.0) > 1e-6:  # away from the switch, by the geometry itself
+        assert m.z_top_pin() == int(height_mm < 95.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(passed=st.tuples(st.integers(-(1 << 40), 1 << 40), st.integers(-(1 << 40), 1 << 40)),
+       base=st.tuples(st.booleans(), st.booleans()))
+def test_both_index_wheels_read_at_once_read_as_each_does(passed, base):
+    """The levels the step interrupt reads in one call are index_wheel()'s for E (bit 0)
+    and D (bit 1), whichever way each wheel's base level and count of steps lie."""
+    from robox.hardware.machine import Machine
+
+    m = Machine()
+    m.wheel_passed[E], m.wheel_passed[D] = passed
+    m.wheel_base[E], m.wheel_base[D] = base
+    assert m.index_levels() == m.index_wheel(E) | (m.index_wheel(D) << 1)
+    # and by the wheels' own rule: the level toggles every 256 microsteps, from the base
+    expected = [((n >> 8) & 1) ^ int(b) for n, b in zip(passed, base, strict=True)]
+    assert m.index_levels() == expected[0] | (expected[1] << 1)
+
+
 @settings(max_examples=2000, deadline=None)
 @given(length=st.one_of(st.integers(0, 3000), st.integers(0x007FFF00, 1 << 31)),
        speed=st.integers(0, 0xFFFFF), end_speed=st.one_of(st.integers(0, 300),

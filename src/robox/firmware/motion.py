@@ -797,12 +797,15 @@ class Motion:
         return most
 
     def _check_index_wheels(self) -> None:
-        m = self.machine
+        levels: i64 = self.machine.index_levels()
+        last = self.last_index
+        if levels == last[0] | (last[1] << 1):  # (as nearly always: neither has changed)
+            return
         i: i64
         for i in range(2):
-            axis: i64 = E + i  # then D
-            if m.index_wheel(axis) != self.last_index[i]:
-                self.last_index[i] ^= 1
+            if (levels >> i) & 1 != last[i]:
+                axis: i64 = E + i  # then D
+                last[i] ^= 1
                 self.acc[axis] &= 0xFFFF
                 self.index_moved[i] = True
 

@@ -63,6 +63,15 @@ ZA_X_MM: Final = -37.546
 ZB_X_MM: Final = 251.5
 Z_TOP_MM: Final = 95.0
 Z_TOP_STEPS: Final = Z_TOP_MM * STEPS_PER_MM[Z]  # where the Z-top switch closes
+# The carriage's X (microsteps) a step inside the span between the leadscrews,
+# ceil(ZA_X_MM * 133.7) + 1 and floor(ZB_X_MM * 133.7) - 1, and a height (microsteps) a
+# step below the Z-top switch, 95 * 6400 - 1: with both leadscrews' ends below it and the
+# carriage within the span, the gantry line there is below it too (z_top_pin() answers
+# without working out the height). (Literals: compiled, constants in the code, where a
+# computed Final is a module attribute looked up and checked at every use.)
+SPAN_X_LO: Final = -5018
+SPAN_X_HI: Final = 33624
+BELOW_TOP: Final = 607999
 INDEX_EDGE_SHIFT: Final = 8
 INDEX_EDGE_STEPS: Final = 1 << INDEX_EDGE_SHIFT  # the index wheel's level toggles this often
 SENSOR_MM: Final = 10.0  # filament sensor after the drive
@@ -297,12 +306,28 @@ class Machine:
         """The Z-top input reads 0 when actuated."""
         if self.stuck and "Z+" in self.stuck:
             return int(not self.stuck["Z+"])
+        if self.za < BELOW_TOP and self.zb < BELOW_TOP and SPAN_X_LO <= self.x <= SPAN_X_HI:
+            return 1  # (asked at every run of interrupts; between its ends, the line is lower)
         return int(self.nozzle_height() < Z_TOP_STEPS)
 
     def index_wheel(self, axis: int) -> int:
         # (a shift: compiled, a native one, where a floor division calls a function)
         level: i64 = (self.wheel_passed[axis] >> INDEX_EDGE_SHIFT) & 1
         return int(level) ^ 1 if self.wheel_base[axis] else int(level)
+
+    def index_levels(self) -> i64:
+        """Both index wheels' levels at once, E's in bit 0 and D's in bit 1 (each as
+        index_wheel() gives it): the step interrupt looks at both at every run of
+        interrupts, and one native call answers it."""
+        passed = self.wheel_passed
+        base = self.wheel_base
+        e: i64 = (passed[E] >> INDEX_EDGE_SHIFT) & 1
+        d: i64 = (passed[D] >> INDEX_EDGE_SHIFT) & 1
+        if base[E]:
+            e ^= 1
+        if base[D]:
+            d ^= 1
+        return e | (d << 1)
 
     def lid_pin(self) -> int:
         return int(self.lid_closed)
