@@ -260,6 +260,31 @@ def test_quality_judges_the_paths_opened_once_the_record_judges():
     assert len(judged) == 2 and {path for *_, path in quality.rows()} == {-1} | judged
 
 
+def test_the_layers_are_every_height_plastic_was_laid_at_in_any_order():
+    """Quality's layers are the heights the plate's plastic was laid at (to 0.01 mm),
+    whether a height repeats row after row or comes back after another; each place's
+    layer is its height's place among them."""
+    from robox.sim.quality import Quality
+
+    m, dep = machine()
+    heights_mm = [0.2, 0.2, 0.45, 0.2, 0.7, 0.45]
+    for k, z in enumerate(heights_mm):
+        m.za = m.zb = round(z * 6400)
+        m.x, m.y = 2674 + 1337 * k, 2674  # X 20 mm, then 10 mm apart
+        m.step(B, B_UNIT)  # open standing, refill, plastic left standing: a blob
+        m.step(E, 400)
+        m.step(B, -B_UNIT)
+    dep.finish()
+    quality = Quality(dep, [(0.0, 0.0, 0.0)] * 2, (210.0, 150.0))
+    distinct = sorted(set(heights_mm))
+    assert quality.layers == distinct
+    figures, places = quality.figures()
+    assert figures["layers"] == len(distinct) and figures["blobs"] == len(heights_mm)
+    for place in places:  # (the worst five: all alike, so the first five)
+        k = round((place.x - 20.0) / 10.0)
+        assert place.layer == distinct.index(heights_mm[k]) + 1
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.sampled_from(["RBX01-SM", "RBX01-DM"]),
        st.lists(st.tuples(st.sampled_from([B, E]), st.integers(-3000, 3000)), max_size=30))

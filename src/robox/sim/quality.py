@@ -24,15 +24,18 @@ import math
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Final
 
 from robox.formats.float8 import short_decimal
 from robox.hardware.deposition import BLOB_MM3, STANDING_MM, Deposition
 from robox.packed import i64, vec
 
-STARVED = 0.8
-LAYER_MERGE_MM = 0.04
-EDGE_MM = 0.5  # plastic this far beyond the plate's edge still counts as on it
-WORST = 5
+# (Final: compiled, constants in the code, where a plain module global is looked up and
+# unboxed at every row)
+STARVED: Final = 0.8
+LAYER_MERGE_MM: Final = 0.04
+EDGE_MM: Final = 0.5  # plastic this far beyond the plate's edge still counts as on it
+WORST: Final = 5
 
 
 @dataclass
@@ -60,6 +63,10 @@ class Quality:
                  bed: tuple[float, float]):
         self.dep = dep
         self.bed = bed
+        # the plate's far edges with the margin, worked out once (on_plate() is asked
+        # for every row)
+        self._x_high = bed[0] + EDGE_MM
+        self._y_high = bed[1] + EDGE_MM
         self.paths = [p for p in dep.paths if p.judged]
         self.unjudged = {p.number for p in dep.paths if not p.judged}
         # (the start sequence's numbers: looked up in the set only within their range)
@@ -96,7 +103,7 @@ class Quality:
         return self.offsets[nozzle] if nozzle >= 0 else self.offsets[0]
 
     def on_plate(self, x: float, y: float) -> bool:
-        return -EDGE_MM <= x <= self.bed[0] + EDGE_MM and -EDGE_MM <= y <= self.bed[1] + EDGE_MM
+        return -EDGE_MM <= x <= self._x_high and -EDGE_MM <= y <= self._y_high
 
     def layer_of(self, z: float) -> int:
         """The layer (from 1) a height belongs to; 0 below the first."""
@@ -127,6 +134,8 @@ class Quality:
 
         run: Place | None = None  # the starved stretch being followed
         last_path = -2
+        added_z = math.nan  # the height last rounded into `heights` (a row's mostly repeats)
+        hypot = math.hypot  # (a local: compiled, the module's attribute is not looked up per row)
         # rows() walked by index over the record's columns (compiled, natively: a row of
         # rows() is a tuple of boxed numbers)
         k: i64
@@ -142,13 +151,14 @@ class Quality:
                 x0, y0, x1, y1 = cx0[k] - ox, cy0[k] - oy, cx1[k] - ox, cy1[k] - oy
                 z, dep, drv = cz[k] - oz, cdep[k], cdrv[k]
                 on_plate = self.on_plate(x1, y1)
-                if dep > 0.0 and on_plate:
+                if dep > 0.0 and on_plate and z != added_z:
                     heights.add(_round2(z))
+                    added_z = z
                 if path < 0 or not on_plate:
                     continue
                 deposited += dep
                 driven += drv
-                length = math.hypot(x1 - x0, y1 - y0)
+                length = hypot(x1 - x0, y1 - y0)
                 if length < STANDING_MM:
                     if dep >= BLOB_MM3:
                         blob += dep
