@@ -18,6 +18,7 @@ from typing import Any, Final
 from robox.firmware.main import Firmware
 from robox.hardware.deposition import Deposition
 from robox.hardware.machine import B, D, E, ThermalModel, X, Y, Z
+from robox.packed import vec
 
 #: The build plate, in the job's frame (its origin at the plate's front left corner).
 BED_X_MM: Final = 210.0
@@ -34,13 +35,15 @@ class Watch:
 
     fw: Firmware
     has_valve: bool
-    low: list[float] = field(default_factory=lambda: [math.inf] * 3)
-    high: list[float] = field(default_factory=lambda: [-math.inf] * 3)
+    # (packed vectors: compiled, read and written natively at every queued move, where a
+    # list's item is a boxed float)
+    low: vec[float] = field(default_factory=lambda: vec[float]([math.inf] * 3))
+    high: vec[float] = field(default_factory=lambda: vec[float]([-math.inf] * 3))
     outside_lines: list[int] = field(default_factory=list)
     clamped_lines: list[int] = field(default_factory=list)
     shut_lines: list[int] = field(default_factory=list)
-    shut_mm: list[float] = field(default_factory=lambda: [0.0, 0.0])  # filament, per reel
-    asked: list[float] = field(default_factory=lambda: [math.nan, math.nan])  # X, Y wanted
+    shut_mm: vec[float] = field(default_factory=lambda: vec[float]([0.0, 0.0]))  # per reel
+    asked: vec[float] = field(default_factory=lambda: vec[float]([math.nan, math.nan]))  # X, Y
 
     start_lines: int = 0  # the job's start sequence: its plastic is not judged
     deposition: Deposition | None = None
@@ -79,7 +82,9 @@ class Watch:
         # (`moves` is the position object's packed vector, boxed for this call; taken
         # as any object: a compiled method that takes a packed vector through its
         # Python entry keeps a reference to each one passed, and the segments' vectors
-        # would pile up, one per queued move)
+        # would pile up, one per queued move. Unboxed once here, its items are read
+        # natively.)
+        distances: vec[float] = moves
         fw = self.fw
         p = fw.position
         line: int = fw.job.line_number
@@ -96,7 +101,7 @@ class Watch:
                 travel: float = limits[i]
                 if wanted < -EPSILON_MM or wanted > travel + EPSILON_MM:
                     self._note(self.clamped_lines, line)
-        if moves[E] <= 0.0 and moves[D] <= 0.0:
+        if distances[E] <= 0.0 and distances[D] <= 0.0:
             return
         low, high = self.low, self.high
         for i in range(X, Z + 1):
@@ -112,6 +117,6 @@ class Watch:
         if self.has_valve and (not homed[B] or abs(p.position[B]) < VALVE_SHUT):
             self._note(self.shut_lines, line)
             for n in range(2):
-                pushed = moves[E + n]
+                pushed = distances[E + n]
                 if pushed > 0.0:
                     self.shut_mm[n] += pushed
