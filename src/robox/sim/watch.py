@@ -48,7 +48,7 @@ class Watch:
     start_lines: int = 0  # the job's start sequence: its plastic is not judged
     deposition: Deposition | None = None
     heaters: list[ThermalModel] = field(default_factory=list)  # read at every pass
-    peak: list[float] = field(default_factory=list)  # each heater's highest reading
+    peak: vec[float] = field(default_factory=lambda: vec[float]([]))  # each heater's peak reading
     reached: int = 0  # the furthest line the job came to
 
     def attach(self) -> None:
@@ -56,7 +56,7 @@ class Watch:
 
     def watch_heaters(self, heaters: list[ThermalModel]) -> None:
         self.heaters = heaters
-        self.peak = [-math.inf] * len(heaters)
+        self.peak = vec[float]([-math.inf] * len(heaters))
 
     def sample(self) -> bool:
         """After a pass: the peaks and the furthest line brought up to date; whether the
