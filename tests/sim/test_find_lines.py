@@ -149,3 +149,25 @@ def test_heights_are_rounded_as_round_rounds_them(value):
 
     got, expected = _round2(value), round(value, 2)
     assert got == expected and math.copysign(1.0, got) == math.copysign(1.0, expected)
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.lists(st.sampled_from([b"G1 X1", b"\r", b"\n", b"\r\n", b"\r\r", b"\n\r", b";c",
+                                 b" ", b"Z2", b"\x85", b"\x0b", b"\x0c"]),
+                max_size=30).map(b"".join))
+def test_a_jobs_lines_are_the_lines_text_with_universal_newlines_reads(tmp_path_factory,
+                                                                        job):
+    """find_lines reads a job's lines from its bytes, each binary line (a line without a
+    CR is itself) cut at its CRs: line for line, the lines a text file with universal
+    newlines (latin-1) gives, for any mix of CR, CR LF and LF, a CR at the end of the
+    file, and bytes that some readers take for line ends (NEL, VT, FF) but universal
+    newlines does not."""
+    from robox.sim.quality import _universal_lines
+
+    path = tmp_path_factory.mktemp("job") / "job.gcode"
+    path.write_bytes(job)
+    with open(path, "rb") as f:
+        ours = [line for chunk in f for line in _universal_lines(chunk)]
+    with open(path, encoding="latin-1", newline=None) as f:
+        text_mode = [line.encode("latin-1") for line in f]
+    assert ours == text_mode
