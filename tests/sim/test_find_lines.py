@@ -154,20 +154,40 @@ def test_heights_are_rounded_as_round_rounds_them(value):
 @settings(max_examples=500, deadline=None)
 @given(st.lists(st.sampled_from([b"G1 X1", b"\r", b"\n", b"\r\n", b"\r\r", b"\n\r", b";c",
                                  b" ", b"Z2", b"\x85", b"\x0b", b"\x0c"]),
-                max_size=30).map(b"".join))
+                max_size=30).map(b"".join), st.integers(1, 9))
 def test_a_jobs_lines_are_the_lines_text_with_universal_newlines_reads(tmp_path_factory,
-                                                                        job):
-    """find_lines reads a job's lines from its bytes, each binary line (a line without a
-    CR is itself) cut at its CRs: line for line, the lines a text file with universal
-    newlines (latin-1) gives, for any mix of CR, CR LF and LF, a CR at the end of the
-    file, and bytes that some readers take for line ends (NEL, VT, FF) but universal
-    newlines does not."""
-    from robox.sim.quality import _universal_lines
+                                                                        job, block):
+    """find_lines reads a job's lines from its bytes a block at a time: line for line,
+    the lines a text file with universal newlines (latin-1) gives, each with its own
+    line end (text mode makes each an LF), for any mix of CR, CR LF and LF, a CR at the
+    end of the file or of a block, and bytes that some readers take for line ends (NEL,
+    VT, FF) but universal newlines does not; blocks of a few bytes put every line and
+    every CR LF across their edges."""
+    from robox.sim.quality import job_lines
 
     path = tmp_path_factory.mktemp("job") / "job.gcode"
     path.write_bytes(job)
     with open(path, "rb") as f:
-        ours = [line for chunk in f for line in _universal_lines(chunk)]
+        ours = list(job_lines(f, block))
     with open(path, encoding="latin-1", newline=None) as f:
         text_mode = [line.encode("latin-1") for line in f]
-    assert ours == text_mode
+    assert b"".join(ours) == job
+    as_text_mode = [line[:-2] + b"\n" if line.endswith(b"\r\n") else
+                    line[:-1] + b"\n" if line.endswith(b"\r") else line for line in ours]
+    assert as_text_mode == text_mode
+
+
+def test_a_job_with_cr_line_ends_is_read_a_block_at_a_time(tmp_path):
+    """A Robox job's lines end in CR alone: read a block at a time, never the whole job
+    as one line, and each line's end is kept."""
+    from robox.sim.quality import job_lines
+
+    path = tmp_path / "job.gcode"
+    path.write_bytes(b"".join(b"G1 X%d Y1\r" % k for k in range(20000)))
+    with open(path, "rb") as f:
+        lines = job_lines(f, 4096)
+        first = next(lines)
+        assert first == b"G1 X0 Y1\r"
+        assert f.tell() == 4096  # one block read for the first line, not the whole job
+        rest = list(lines)
+    assert len(rest) == 19999 and rest[-1] == b"G1 X19999 Y1\r"

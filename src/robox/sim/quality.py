@@ -24,7 +24,7 @@ import math
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Final
+from typing import BinaryIO, Final
 
 from robox.formats.float8 import short_decimal
 from robox.hardware.deposition import BLOB_MM3, STANDING_MM, Deposition
@@ -227,29 +227,29 @@ def _blank(c: int) -> bool:
     return c == 32 or 9 <= c <= 13 or 28 <= c <= 31 or c == 133 or c == 160
 
 
-def _universal_lines(chunk: bytes) -> list[bytes]:
-    """The lines text with universal newlines reads in `chunk` (a binary file's line: up
-    to and with its LF, or the file's last bytes): CR LF, CR and LF each end a line,
-    which ends in LF; the bytes after the last of them, if any, are the last line."""
-    lines: list[bytes] = []
-    n: i64 = len(chunk)
-    start: i64 = 0
-    i: i64 = 0
-    while i < n:
-        c = chunk[i]
-        if c == 13:  # CR, or CR LF
-            lines.append(chunk[start:i] + b"\n")
-            i += 2 if i + 1 < n and chunk[i + 1] == 10 else 1
-            start = i
-        elif c == 10:
-            i += 1
-            lines.append(chunk[start:i])
-            start = i
-        else:
-            i += 1
-    if start < n:
-        lines.append(chunk[start:])
-    return lines
+#: How much of a job find_lines reads at a time.
+JOB_BLOCK: Final = 1 << 16
+
+
+def job_lines(f: BinaryIO, block: int = JOB_BLOCK) -> Iterator[bytes]:
+    """The lines of the binary file `f` as text with universal newlines reads them (CR
+    LF, CR and LF each end a line), each with its line end as it was; read `block`
+    bytes at a time, so memory stays flat in the file's size whatever its line ends (a
+    Robox job's are CRs). A line that runs on into the next block waits for it, as does
+    a CR that ends a block (an LF may follow it)."""
+    pending = b""
+    while True:
+        data = f.read(block)
+        if not data:
+            if pending:
+                yield from pending.splitlines(keepends=True)
+            return
+        lines = (pending + data).splitlines(keepends=True)
+        pending = lines.pop()
+        yield from lines
+        if pending.endswith(b"\n"):  # whole (an LF, or a CR LF)
+            yield pending
+            pending = b""
 
 
 def find_lines(job: str | os.PathLike, places: list[Place]) -> None:
@@ -276,81 +276,80 @@ def find_lines(job: str | os.PathLike, places: list[Place]) -> None:
     x = y = z = 0.0
     relative = False
     number: i64 = 0
-    # (lines as text with universal newlines has them, CR, CR LF and LF each ending one,
-    # read as LF: from the bytes, as a binary file's lines up to each LF, those with a
-    # CR in them cut at it; compiled, no line is decoded into text and back)
+    # (the job's lines as universal newlines reads them, each with its own line end, CR
+    # LF, CR or LF: the reading below takes any of them for a blank; compiled, no line is
+    # decoded into text and back)
     with open(job, "rb") as f:
-        for chunk in f:
-            for text in ((chunk,) if b"\r" not in chunk else _universal_lines(chunk)):
-                number += 1
-                # (native integers: compiled, an index's step is a plain add)
-                end: i64 = len(text)
-                k: i64
-                for k in range(end):
-                    if text[k] == 59:  # ;
-                        end = k
-                        break
-                i: i64 = 0
-                while i < end and _blank(text[i]):
-                    i += 1
-                if i + 1 >= end or text[i] | 0x20 != 0x67:  # G
+        for text in job_lines(f):
+            number += 1
+            # (native integers: compiled, an index's step is a plain add)
+            end: i64 = len(text)
+            k: i64
+            for k in range(end):
+                if text[k] == 59:  # ;
+                    end = k
+                    break
+            i: i64 = 0
+            while i < end and _blank(text[i]):
+                i += 1
+            if i + 1 >= end or text[i] | 0x20 != 0x67:  # G
+                continue
+            code = text[i + 1]
+            after = text[i + 2] if i + 2 < end else 0
+            if code == 0x39:  # G9: G90, G91 (whatever follows)
+                if after == 0x31:
+                    relative = True
+                elif after == 0x30:
+                    relative = False
+                continue
+            if (code != 0x30 and code != 0x31) or 48 <= after <= 57:
+                continue  # not G0 or G1
+            j: i64 = 0
+            while j < end:
+                letter = text[j] | 0x20
+                j += 1
+                if letter < 0x78 or letter > 0x7A:  # x, y, z
                     continue
-                code = text[i + 1]
-                after = text[i + 2] if i + 2 < end else 0
-                if code == 0x39:  # G9: G90, G91 (whatever follows)
-                    if after == 0x31:
-                        relative = True
-                    elif after == 0x30:
-                        relative = False
-                    continue
-                if (code != 0x30 and code != 0x31) or 48 <= after <= 57:
-                    continue  # not G0 or G1
-                j: i64 = 0
-                while j < end:
-                    letter = text[j] | 0x20
-                    j += 1
-                    if letter < 0x78 or letter > 0x7A:  # x, y, z
-                        continue
-                    k = j
-                    while k < end and _blank(text[k]):
-                        k += 1
-                    first = k
-                    if k < end and (text[k] == 43 or text[k] == 45):  # + -
-                        k += 1
+                k = j
+                while k < end and _blank(text[k]):
+                    k += 1
+                first = k
+                if k < end and (text[k] == 43 or text[k] == 45):  # + -
+                    k += 1
+                while k < end and 48 <= text[k] <= 57:
+                    k += 1
+                digits = k > first and 48 <= text[k - 1] <= 57
+                if k + 1 < end and text[k] == 46 and 48 <= text[k + 1] <= 57:  # .digits
+                    k += 2
                     while k < end and 48 <= text[k] <= 57:
                         k += 1
-                    digits = k > first and 48 <= text[k - 1] <= 57
-                    if k + 1 < end and text[k] == 46 and 48 <= text[k + 1] <= 57:  # .digits
-                        k += 2
-                        while k < end and 48 <= text[k] <= 57:
-                            k += 1
-                        digits = True
-                    if not digits:
-                        continue
-                    v = short_decimal(text, first)
-                    if v != v:  # (not a short one: float() reads what was found)
-                        v = float(text[first:k])
-                    if letter == 0x78:
-                        x = x + v if relative else v
-                    elif letter == 0x79:
-                        y = y + v if relative else v
-                    else:
-                        z = z + v if relative else v
-                    j = k
-                if z != floors_z:
-                    for h in range(n):
-                        dz = z - pz[h]  # (products, not ** 2: compiled, a power is generic)
-                        floors[h] = 100.0 * (dz * dz)
-                    floors_z = z
+                    digits = True
+                if not digits:
+                    continue
+                v = short_decimal(text, first)
+                if v != v:  # (not a short one: float() reads what was found)
+                    v = float(text[first:k])
+                if letter == 0x78:
+                    x = x + v if relative else v
+                elif letter == 0x79:
+                    y = y + v if relative else v
+                else:
+                    z = z + v if relative else v
+                j = k
+            if z != floors_z:
                 for h in range(n):
-                    floor = floors[h]
-                    if floor > best[h]:
-                        continue  # (the whole distance is at least this)
-                    dx, dy = x - px[h], y - py[h]
-                    d = dx * dx + dy * dy + floor
-                    if d < best[h]:
-                        best[h] = d
-                        places[h].line = number
+                    dz = z - pz[h]  # (products, not ** 2: compiled, a power is generic)
+                    floors[h] = 100.0 * (dz * dz)
+                floors_z = z
+            for h in range(n):
+                floor = floors[h]
+                if floor > best[h]:
+                    continue  # (the whole distance is at least this)
+                dx, dy = x - px[h], y - py[h]
+                d = dx * dx + dy * dy + floor
+                if d < best[h]:
+                    best[h] = d
+                    places[h].line = number
 
 
 def plot(quality: Quality, target: str | os.PathLike, layer: int | None,
