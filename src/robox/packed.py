@@ -59,7 +59,6 @@ except ImportError:  # pragma: no cover - mypy_extensions comes with the build's
     i64 = u8 = int  # type: ignore[misc,assignment]
 
 
-
 def floats_to_bytes(values: vec[float]) -> bytes:
     """The floats as little-endian doubles, 8 bytes each (compiled, each written natively
     where an array made of a vector boxes every item and parses it back)."""
