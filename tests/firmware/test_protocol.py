@@ -338,3 +338,64 @@ def test_parameters_set_on_one_printer_leave_the_next_printers_factory_settings(
     m503 = fresh.gcode(b"M503\n")
     assert b"M92 X133.699997 Y133.699997 Z6400.000000 E747.000000 " in m503
     assert b"M301 P8.000000e-02 I1.200000e-02" in m503
+
+
+def test_every_codes_parameter_length_is_its_fixed_length_or_its_headers_count():
+    """The command object finds a command's length by its code from a table: for each
+    of the 256 codes it is the code's fixed length, its header's count (the header
+    incomplete until all of it is there) or unknown, as the firmware's own tables say."""
+    from robox.firmware.command import (
+        FIXED,
+        HEADER_INCOMPLETE,
+        UNKNOWN_CODE,
+        VARIABLE,
+        parameter_length,
+    )
+
+    for code in range(256):
+        if code in FIXED:
+            assert parameter_length(bytes([code])) == FIXED[code]
+        elif code in VARIABLE:
+            header, at, digits = VARIABLE[code]
+            count = (0x1234 >> 4 * (4 - digits)) & ((1 << 4 * digits) - 1)
+            raw = bytes([code]) + b"0" * at + b"%0*x" % (digits, count)
+            raw = raw.ljust(1 + header, b"0")
+            assert parameter_length(raw[:header]) == HEADER_INCOMPLETE
+            assert parameter_length(raw) == header + count
+        else:
+            assert parameter_length(bytes([code])) == UNKNOWN_CODE
+    # a few from the spec's table: a file chunk, a status request, a counted chunk end
+    assert parameter_length(b"\x91") == 8 + 512
+    assert parameter_length(b"\xb0") == 0
+    assert parameter_length(b"\x92" + b"00000003" + b"0010") == 12 + 16
+    assert parameter_length(b"\x80") == UNKNOWN_CODE
+
+
+def test_the_link_takes_a_hosts_bytes_in_any_buffer_and_hands_out_bytes():
+    """What a host writes (bytes, a bytearray, a memoryview) crosses the link a packet
+    of at most 64 bytes a frame, only to an armed read and no more than its room, and
+    reaches the firmware and comes back as bytes."""
+    from robox.hardware.usb import UsbLink
+
+    link = UsbLink()
+    data = bytes(range(200))
+    link.host_write(bytearray(data[:100]))
+    link.host_write(memoryview(data)[100:])
+    assert link.peek(150) == data[:150] and link.received == 0
+    link.arm(40)
+    link.frame()
+    link.frame()  # disarmed until the firmware takes what came
+    assert link.received == 40
+    taken = link.device_take(1000)
+    assert type(taken) is bytes and taken == data[:40]
+    got = b""
+    while link.arriving:
+        link.arm(1 << 20)
+        link.frame()
+        piece = link.device_take(1 << 20)
+        assert len(piece) <= 64
+        got += piece
+    assert got == data[40:]
+    link.device_send(bytearray(b"\xe3" + b"0" * 64))
+    assert link.host_read(10) == b"\xe3" + b"0" * 9
+    assert type(link.host_read()) is bytes and not link.in_flight

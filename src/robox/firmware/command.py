@@ -58,21 +58,25 @@ VARIABLE: Final = {0x92: (12, 8, 4), 0x95: (4, 0, 4), 0xA0: (4, 2, 2), 0xA2: (4,
 
 UNKNOWN_CODE: Final = -1
 HEADER_INCOMPLETE: Final = -2
+_COUNTED: Final = -3
+# each code's entry in FIXED, or UNKNOWN_CODE, or _COUNTED (in VARIABLE), by the code
+# (a tuple indexed natively, compiled: where a dict is looked up twice with a boxed key)
+_LENGTHS: Final = tuple(FIXED.get(c, _COUNTED if c in VARIABLE else UNKNOWN_CODE)
+                        for c in range(256))
 
 
-def parameter_length(buf: bytes | bytearray) -> int:
+def parameter_length(buf: bytes) -> int:
     """The parameter bytes of the Robox command whose code starts `buf`: fixed, or its
     header's count; UNKNOWN_CODE for a code the firmware does not know, HEADER_INCOMPLETE
     while a counted header is not all there."""
     code = buf[0]
-    if code in FIXED:
-        return FIXED[code]
-    if code in VARIABLE:
-        header, at, digits = VARIABLE[code]
-        if len(buf) < 1 + header:
-            return HEADER_INCOMPLETE
-        return header + (get_hex(buf[1 + at : 1 + at + digits]) & 0xFFFF)
-    return UNKNOWN_CODE
+    fixed: int = _LENGTHS[code]
+    if fixed != _COUNTED:
+        return fixed
+    header, at, digits = VARIABLE[code]
+    if len(buf) < 1 + header:
+        return HEADER_INCOMPLETE
+    return header + (get_hex(buf[1 + at : 1 + at + digits]) & 0xFFFF)
 
 
 def _no_reply(response: bytes) -> None:
@@ -127,7 +131,8 @@ class Command:
         self.fw = firmware
 
     def initialise(self) -> None:
-        self.buffer = bytearray()
+        # (bytes, sliced and replaced: compiled, native, where a bytearray's are generic)
+        self.buffer = b""
         self.robox_mode = False
         self.last_ack_report = self.fw.clock.now
         self.memory = bytearray(MEMORY_SIZE)  # the simulated address space of 0xf0
@@ -201,7 +206,7 @@ class Command:
         elif not self.robox_mode:
             return 0
         else:
-            head = bytes(buf[:13])
+            head = buf[:13]
             if len(head) < 13:
                 head += self.fw.hw.usb.peek(13 - len(head))
         n = parameter_length(head)
@@ -221,7 +226,7 @@ class Command:
             n = self._robox() if self.robox_mode else self._pronterface()
             if n == 0:
                 break
-            del self.buffer[:n]
+            self.buffer = self.buffer[n:]
         if len(self.buffer) >= RECEIVE_BUFFER and self.line is None and not self.deaf:
             self.deaf = True
             self.fw.events.append(("deaf", "1024 bytes with no complete command or line: "
@@ -257,9 +262,9 @@ class Command:
     def _pronterface(self) -> int:
         from robox.firmware.gcode import line_length
 
-        n = line_length(bytes(self.buffer))
+        n = line_length(self.buffer)
         if n:
-            self._run_line(bytes(self.buffer[:n]), self._send_text)
+            self._run_line(self.buffer[:n], self._send_text)
         return n
 
     def _send_text(self, response: bytes) -> None:
@@ -276,7 +281,7 @@ class Command:
             return 1
         if length == HEADER_INCOMPLETE or len(buf) < 1 + length:
             return 0
-        params = bytes(buf[1 : 1 + length])
+        params = buf[1 : 1 + length]
         self._dispatch(code, params)
         return 1 + length
 

@@ -32,11 +32,13 @@ class LinkDown(RoboxError):
 class UsbLink:
     def __init__(self) -> None:
         self.connected = True
-        self._rx = bytearray()  # host -> device, delivered, not yet taken by the firmware
-        self._host = bytearray()  # host -> device, written, not yet delivered
+        # (bytes, each taken from by a slice and replaced: compiled, slicing and joining
+        # bytes are native, where a bytearray's slice and deletion are generic calls)
+        self._rx = b""  # host -> device, delivered, not yet taken by the firmware
+        self._host = b""  # host -> device, written, not yet delivered
         self.armed = True  # the firmware has a read armed
         self.room = 1 << 30  # how many bytes that read may take
-        self._tx = bytearray()  # replies the host has not read yet
+        self._tx = b""  # replies the host has not read yet
         self.replies = 0
         self.bytes_in = 0
         self.bytes_out = 0
@@ -45,14 +47,14 @@ class UsbLink:
     def host_write(self, data: bytes) -> None:
         if not self.connected:
             raise LinkDown("the printer is not connected")
-        self._host += data
+        self._host += bytes(data)
         self.bytes_in += len(data)
 
     def host_read(self, limit: int = PACKET_SIZE) -> bytes:
         if not self.connected:
             raise LinkDown("the printer is not connected")
-        out = bytes(self._tx[:limit])
-        del self._tx[:limit]
+        out = self._tx[:limit]
+        self._tx = self._tx[limit:]
         return out
 
     @property
@@ -61,9 +63,7 @@ class UsbLink:
 
     def disconnect(self) -> None:
         self.connected = False
-        self._rx.clear()
-        self._host.clear()
-        self._tx.clear()
+        self._rx = self._host = self._tx = b""
 
     def connect(self) -> None:
         self.connected = True
@@ -87,7 +87,7 @@ class UsbLink:
         if n <= 0:
             return
         self._rx += self._host[:n]
-        del self._host[:n]
+        self._host = self._host[n:]
         self.armed = False
 
     def frames_within(self, inert: int) -> int:
@@ -112,8 +112,8 @@ class UsbLink:
 
     def peek(self, n: int) -> bytes:
         """The first `n` bytes on their way (delivered ones first), left where they are."""
-        out = bytes(self._rx[:n])
-        return out + bytes(self._host[:n - len(out)]) if len(out) < n else out
+        out = self._rx[:n]
+        return out + self._host[:n - len(out)] if len(out) < n else out
 
     @property
     def delivering(self) -> bool:
@@ -130,8 +130,8 @@ class UsbLink:
         return len(self._rx)
 
     def device_take(self, limit: int) -> bytes:
-        out = bytes(self._rx[:limit])
-        del self._rx[:limit]
+        out = self._rx[:limit]
+        self._rx = self._rx[limit:]
         return out
 
     @property
@@ -142,7 +142,7 @@ class UsbLink:
         """Queue a reply for the host (dropped while disconnected)."""
         if not self.connected:
             return True
-        self._tx += reply
+        self._tx += bytes(reply)
         self.replies += 1
         self.bytes_out += len(reply)
         return True
