@@ -720,6 +720,37 @@ def test_both_index_wheels_read_at_once_read_as_each_does(passed, base):
     assert m.index_levels() == expected[0] | (expected[1] << 1)
 
 
+_FEED = st.one_of(st.none(), st.tuples(st.integers(-3000, 3000), st.integers(0, 6000)))
+
+
+@settings(max_examples=300, deadline=None)
+@given(feeds=st.tuples(_FEED, _FEED),
+       stuck=st.sampled_from([{}, {"E": True}, {"D": False}, {"X": True},
+                              {"E": False, "D": True}]))
+# a tip at the sensor, a tail at it, and a step past each
+@example(feeds=((0, 10), (-1, 10)), stuck={})
+@example(feeds=((10, 10), (11, 10)), stuck={})
+def test_both_filament_sensors_read_at_once_read_as_each_does(feeds, stuck):
+    """The sensors the foreground reads in one call on every pass are switch_pin()'s
+    for E (bit 0) and D (bit 1): 0 where filament lies across the sensor, 1 where none
+    does (its tip short of it, its tail past it, or no filament), an input stuck at a
+    level by fault injection read as stuck."""
+    from robox.hardware.machine import SENSOR_STEPS, Filament, Machine
+
+    m = Machine()
+    for axis, feed in zip((E, D), feeds, strict=True):
+        if feed is not None:  # its tip that far past the sensor, that length behind it
+            tip = SENSOR_STEPS[axis] + feed[0]
+            m.filament[axis] = Filament(tip=tip, tail=tip - feed[1])
+    m.stuck = dict(stuck)
+    assert m.sensor_pins() == m.switch_pin(E) | (m.switch_pin(D) << 1)
+    # and by the sensor's own rule, where nothing is stuck
+    if not stuck:
+        expected = [int(not (f is not None and f.tail <= SENSOR_STEPS[axis] <= f.tip))
+                    for axis, f in ((E, m.filament[E]), (D, m.filament[D]))]
+        assert m.sensor_pins() == expected[0] | (expected[1] << 1)
+
+
 @settings(max_examples=2000, deadline=None)
 @given(length=st.one_of(st.integers(0, 3000), st.integers(0x007FFF00, 1 << 31)),
        speed=st.integers(0, 0xFFFFF), end_speed=st.one_of(st.integers(0, 300),

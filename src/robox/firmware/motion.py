@@ -289,11 +289,12 @@ class Motion:
         invert = self.fw.parameters.invert_switch
         acc = self.acc
         counters = self.autoload_counter
+        pins: i64 = m.sensor_pins()  # (both sensors in one call)
         i: i64  # (native integers: compiled, the sums and indices below are native)
         for i in range(2):
             axis: i64 = E + i  # then D
-            level: int = invert[axis]
-            if m.switch_pin(axis) == level:  # no filament
+            level: i64 = invert[axis]
+            if (pins >> i) & 1 == level:  # no filament
                 if now - self.holdoff_since < FILAMENT_HOLDOFF_S or not self.empty():
                     if counters[i]:
                         counters[i] = 0

@@ -302,6 +302,22 @@ class Machine:
             return 0 if self.filament_present(axis) else 1  # (each pass reads both)
         return int(self.actuated(axis)) ^ int(E <= axis <= D)
 
+    def sensor_pins(self) -> i64:
+        """Both filament sensors' input levels at once, E's in bit 0 and D's in bit 1
+        (each as switch_pin() reads it): the foreground looks at both on every pass, and
+        one native call answers it."""
+        if self.stuck:
+            return self.switch_pin(E) | (self.switch_pin(D) << 1)
+        sensors = self._sensor_steps
+        pins: i64 = 3
+        f = self.filament[E]
+        if f is not None and f.tail <= sensors[E] <= f.tip:
+            pins = 2
+        f = self.filament[D]
+        if f is not None and f.tail <= sensors[D] <= f.tip:
+            pins &= 1
+        return pins
+
     def z_top_pin(self) -> int:
         """The Z-top input reads 0 when actuated."""
         if self.stuck and "Z+" in self.stuck:
