@@ -72,6 +72,59 @@ def test_a_line_waiting_on_motion_is_resumed_only_once_it_can_go_on(wire):
     assert all(s[1] for s in ready) and all(s[2] for s in empty)
 
 
+def _pass_by_pass(generator_lines: bool) -> list[tuple]:
+    """A job, host lines sent while its lines wait on motion and an abort part-way, run
+    pass by pass; the job engine's state after every pass. `generator_lines`: each
+    buffered line run inside the generator that takes it off its buffer at its end
+    (_buffer_line), rather than its own routine run as the step under way."""
+    from tests.firmware.wire import Wire
+
+    wire = Wire()
+    wire.printer.settle()
+    job, fw = wire.fw.job, wire.fw
+    if generator_lines:
+        action = job._action
+        job._action = lambda direct=False: action(False)
+    # (a line with no G, M or T has no routine: taken off at once)
+    lines = job_text(["M400", "G4 P20", "; no code here"] * 3)
+    wire.upload("lines", circle_job(60, heat=False) + lines + circle_job(60, heat=False))
+    wire.ok(b"\x94" + ident("lines"))
+    states = []
+    sent = set()
+    while job.running and len(states) < 100_000:
+        at = job.line_number
+        if at in (20, 60, 61) and at not in sent:  # host lines join the execute buffer
+            sent.add(at)
+            text = b"M106 S%d\r\n" % at
+            wire.usb.host_write(b"\x95" + hexn(len(text), 4) + text)
+        if at == 110 and at not in sent:
+            sent.add(at)
+            wire.usb.host_write(b"\xff")  # abort, a line under way
+        fw.run_pass()
+        states.append((fw.clock.now, job.line_number, job.lines_executed, job.job_buffer,
+                       job.execute_buffer, job.current is None, job.running,
+                       wire.usb.reply_waiting))
+        if wire.usb.reply_waiting:
+            wire.usb.host_read(1 << 16)
+    return states
+
+
+@pytest.mark.skipif("robox.firmware.gcode" in compiled_modules(),
+                    reason="a compiled class's methods cannot be replaced; the same source "
+                           "is checked by the pure-Python run")
+def test_a_buffered_line_run_as_the_step_under_way_leaves_its_buffer_as_the_generator_did():
+    """The job engine runs a buffered line's own routine as its step (one generator
+    fewer to resume at every pass a line waits) and takes the line off its buffer in the
+    pass that routine ends: pass by pass, through lines that wait on motion, host lines
+    joining the execute buffer and an abort, the state is the one the generator around
+    each line leaves."""
+    direct = _pass_by_pass(generator_lines=False)
+    assert direct == _pass_by_pass(generator_lines=True)
+    # and the run covered what it is for: lines waiting, host lines, the abort
+    assert any(not s[5] for s in direct) and any(s[4] for s in direct)
+    assert direct[-1][6] is False and any(s[6] for s in direct)
+
+
 def test_run_job_restarts_a_running_job_and_an_unknown_id_ends_it(wire):
     wire.upload("twice", job_text(["G4 S5"] * 20))
     wire.ok(b"\x94" + ident("twice"))

@@ -131,6 +131,10 @@ class Job:
         self.idle_since = now
         self.current: Waits | None = None  # the job-level step under way
         self.waiting: Wait | None = None
+        # a buffered line's own routine run as `current` (see _line_step): the bytes its
+        # end takes off a buffer (0: none), and which (True: the job's)
+        self._taking: i64 = 0
+        self._taking_job = False
         self.lines_executed = 0
         self.jobs_completed = 0
         self.slip_count = [0, 0]
@@ -239,12 +243,13 @@ class Job:
             self._drive()
             return
         slipped = self._the_boss()
-        step = self._slip_handling(slipped) if slipped is not None else self._action()
+        step = self._slip_handling(slipped) if slipped is not None else self._action(True)
         if step is not None:
             self._start(step)
 
-    def _action(self) -> Waits | None:
-        """The one thing maintain_job does this pass; a generator when it may wait."""
+    def _action(self, direct: bool = False) -> Waits | None:
+        """The one thing maintain_job does this pass; a generator when it may wait.
+        `direct`: a buffered line's own routine, to be run as `current` (_line_step)."""
         fw = self.fw
         if self.abort_flag:
             if fw.motion.empty():
@@ -262,7 +267,7 @@ class Job:
             return None
         n = line_length(self.execute_buffer)
         if n:
-            return self._buffer_line(False, n)
+            return self._line_step(False, n) if direct else self._buffer_line(False, n)
         if not self.running:
             return None
         if self.pause:
@@ -271,7 +276,7 @@ class Job:
             return self._unpark()
         if (n := line_length(self.job_buffer)) > 0:
             self.line_number += 1
-            return self._buffer_line(True, n)
+            return self._line_step(True, n) if direct else self._buffer_line(True, n)
         if len(self.job_buffer) >= LINE_LIMIT:
             fw.errors.set(ErrorBit.GCODE_LINE_TOO_LONG)
             self.abort()
@@ -393,6 +398,10 @@ class Job:
         waiting = _NEXT(step, None)
         if waiting is None:
             self.current = None
+            taking = self._taking
+            if taking:  # a buffered line's routine has ended (_line_step)
+                self._taking = 0
+                self._line_done(self._taking_job, taking)
         self.waiting = waiting
 
     def _buffer_line(self, job: bool, n: int) -> Waits:
@@ -403,6 +412,24 @@ class Job:
         step = self._code_step((self.job_buffer if job else self.execute_buffer)[:n])
         if step is not None:
             yield from step
+        self._line_done(job, n)
+
+    def _line_step(self, job: bool, n: i64) -> Waits | None:
+        """What _buffer_line does, without a generator around the line's own: the line
+        run at once, its routine (if it has one) returned to run as `current`, and the
+        line taken off its buffer when that ends (_drive), in the same pass, as the
+        generator's end would. (Compiled, every pass a line waits resumes it through
+        one generator fewer.)"""
+        step = self._code_step((self.job_buffer if job else self.execute_buffer)[:n])
+        if step is None:
+            self._line_done(job, n)
+            return None
+        self._taking = n
+        self._taking_job = job
+        return step
+
+    def _line_done(self, job: bool, n: i64) -> None:
+        """A buffered line of `n` bytes has run: taken off its buffer."""
         # an abort may have emptied the buffer meanwhile, and a host's lines may have
         # joined the execute buffer
         if job:
