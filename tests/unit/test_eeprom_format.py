@@ -76,6 +76,7 @@ def test_float8_pads_short_text():
 ])
 def test_float8_parses_like_strtof(raw, value):
     assert float8.parse(raw) == value
+    assert float8.parse(bytearray(raw)) == value  # a buffer's field read in place
 
 
 _LIBC = ctypes.util.find_library("c")

@@ -53,7 +53,8 @@ def encode_checked(value: float, pad: bytes = b" ") -> bytes:
 
 def parse(raw: bytes | bytearray) -> float:
     """Read like strtof: the leading number, 0.0 when there is none."""
-    text = bytes(raw)
+    # (bytes as they are: compiled, bytes() of a union is a generic call)
+    text: bytes = raw if isinstance(raw, bytes) else bytes(raw)
     value = short_decimal(text, skip_blanks(text, 0))  # (nearly every field: no pattern matched)
     if value == value:
         return to_float32(value)
