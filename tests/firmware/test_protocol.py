@@ -372,15 +372,15 @@ def test_every_codes_parameter_length_is_its_fixed_length_or_its_headers_count()
 
 
 def test_the_link_takes_a_hosts_bytes_in_any_buffer_and_hands_out_bytes():
-    """What a host writes (bytes, a bytearray, a memoryview) crosses the link a packet
-    of at most 64 bytes a frame, only to an armed read and no more than its room, and
-    reaches the firmware and comes back as bytes."""
+    """What a host writes crosses the link a packet of at most 64 bytes a frame, only
+    to an armed read and no more than its room, in order across writes, and reaches
+    the firmware, and the replies the host, as bytes."""
     from robox.hardware.usb import UsbLink
 
     link = UsbLink()
     data = bytes(range(200))
-    link.host_write(bytearray(data[:100]))
-    link.host_write(memoryview(data)[100:])
+    link.host_write(data[:100])
+    link.host_write(data[100:])
     assert link.peek(150) == data[:150] and link.received == 0
     link.arm(40)
     link.frame()
@@ -396,6 +396,6 @@ def test_the_link_takes_a_hosts_bytes_in_any_buffer_and_hands_out_bytes():
         assert len(piece) <= 64
         got += piece
     assert got == data[40:]
-    link.device_send(bytearray(b"\xe3" + b"0" * 64))
+    link.device_send(b"\xe3" + b"0" * 64)
     assert link.host_read(10) == b"\xe3" + b"0" * 9
     assert type(link.host_read()) is bytes and not link.in_flight

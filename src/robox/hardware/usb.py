@@ -47,7 +47,7 @@ class UsbLink:
     def host_write(self, data: bytes) -> None:
         if not self.connected:
             raise LinkDown("the printer is not connected")
-        self._host += bytes(data)
+        self._host += data
         self.bytes_in += len(data)
 
     def host_read(self, limit: int = PACKET_SIZE) -> bytes:
@@ -142,7 +142,7 @@ class UsbLink:
         """Queue a reply for the host (dropped while disconnected)."""
         if not self.connected:
             return True
-        self._tx += bytes(reply)
+        self._tx += reply
         self.replies += 1
         self.bytes_out += len(reply)
         return True
