@@ -21,6 +21,7 @@ NATIVE_MODULES = [
     "src/robox/firmware/gcode.py",
     "src/robox/firmware/command.py",
     "src/robox/firmware/eeprom.py",
+    "src/robox/firmware/file_system.py",
     "src/robox/firmware/parameters.py",
     "src/robox/firmware/error_flags.py",
     "src/robox/firmware/user_interface.py",

@@ -21,6 +21,7 @@ MODULES = (
     "robox.firmware.gcode",
     "robox.firmware.command",
     "robox.firmware.eeprom",
+    "robox.firmware.file_system",
     "robox.firmware.parameters",
     "robox.firmware.error_flags",
     "robox.firmware.user_interface",

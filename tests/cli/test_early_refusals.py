@@ -91,16 +91,14 @@ def test_a_card_too_small_is_refused_naming_the_users_path(tmp_path):
 def test_fsck_of_a_valid_card_reads_what_a_mount_reads(tmp_path, monkeypatch):
     """A mount reads block 0, and the whole card only when block 0 is not a valid
     directory (to look for a recovery copy): fsck reads the same, unless --deep."""
-    from robox.hardware.sdcard import SdCard
+    from robox.hardware.storage import FileStorage
 
     card = tmp_path / "card.img"
     format_image(card, 1 << 17)  # 64 MiB
-    read = []
-    real_one, real_many = SdCard.read_block, SdCard.read_blocks
-    monkeypatch.setattr(SdCard, "read_block",
-                        lambda self, b: read.append(1) or real_one(self, b))
-    monkeypatch.setattr(SdCard, "read_blocks",
-                        lambda self, b, n: read.append(n) or real_many(self, b, n))
+    read = []  # the blocks each read of the image takes (the card reads through it)
+    real_read = FileStorage.read
+    monkeypatch.setattr(FileStorage, "read", lambda self, offset, length:
+                        read.append(length // 512) or real_read(self, offset, length))
     shallow = json.loads(run("sdcard", "fsck", card, "--json").output)
     assert sum(read) <= 2 and shallow["recovery_copies"] is None
     read.clear()

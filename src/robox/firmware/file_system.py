@@ -144,7 +144,7 @@ def plan_mount(card: SdCard) -> MountPlan:
                      trailer_generation(on_card) or 0, (), ())
 
 
-def extent_blocks(start: int, count: int, capacity: int) -> range | tuple[range, range]:
+def extent_blocks(start: int, count: int, capacity: int) -> tuple[range, ...]:
     """Blocks of an extent as one or two ranges (it may wrap past the end)."""
     end = start + count
     if end <= capacity:
@@ -200,6 +200,18 @@ class FileSystem:
     @property
     def directory(self) -> Directory | None:
         return self._dir
+
+    def _d(self) -> Directory:
+        """The directory in memory, where the caller has it mounted."""
+        d = self._dir
+        assert d is not None, "the card is not mounted"
+        return d
+
+    def _card_dir(self) -> Directory:
+        """What block 0 holds, where the caller has read it."""
+        d = self._on_card
+        assert d is not None, "block 0 has not been read"
+        return d
 
     def _unmount(self) -> None:
         self._dir = None
@@ -277,7 +289,7 @@ class FileSystem:
         update that was in flight, never an old state.
         """
         self._generation += 1
-        target = self._dir = self._with_write_length(self._dir)
+        target = self._dir = self._with_write_length(self._d())
         where = self._copy_location(target) if self.recovery_copies else None
         if where is not None and not self._write_block(
                 where, encode_copy(stamp_generation(target, self._generation), where)):
@@ -302,9 +314,9 @@ class FileSystem:
         return d.with_slot(d.next_file, replace(slot, length=self._write_length))
 
     def _length(self, index: int) -> int:
-        if self._writing and index == self._dir.next_file:
+        if self._writing and index == self._d().next_file:
             return self._write_length
-        return self._dir.slots[index].length
+        return self._d().slots[index].length
 
     def _copy_location(self, target: Directory) -> int | None:
         """The write position, if no committed file (before or after) lies there."""
@@ -334,7 +346,7 @@ class FileSystem:
             self._generation = trailer_generation(self._on_card) or 0
         self._writing = False
         self._reader = None
-        on_card = self._on_card
+        on_card = self._card_dir()
         if not project_walk(on_card, self.card.capacity).valid:
             return self._format_fresh()
         # Empty the ring first (one index byte), then zero slots that are now
@@ -357,7 +369,7 @@ class FileSystem:
             return False
         raw = file_id.encode("ascii") if isinstance(file_id, str) else bytes(file_id)
         self._writing = False
-        d = self._dir
+        d = self._d()
         ring = d.ring()
         if ring:
             newest = ring[-1]
@@ -367,11 +379,11 @@ class FileSystem:
                 self._dir = replace(d, next_file=newest,
                                     next_write_block=slot.start_block).with_slot(newest,
                                                                                  EMPTY_SLOT)
-                rewound = replace(self._on_card, next_file=newest,
+                rewound = replace(self._card_dir(), next_file=newest,
                                   next_write_block=slot.start_block)
                 if not self._update([rewound]):
                     return False
-        d = self._dir
+        d = self._d()
         n = d.next_file
         if self._reader and self._reader.slot == n:
             self._clobber_reader()
@@ -390,7 +402,7 @@ class FileSystem:
     def _make_space(self, after_write: bool) -> bool:
         """Drop the oldest file while the write position has reached its start."""
         while True:
-            d = self._dir
+            d = self._d()
             if d.first_file == d.next_file:  # no committed file left
                 writing = d.slots[d.next_file]
                 if after_write and self._write_pos == writing.start_block:
@@ -409,11 +421,11 @@ class FileSystem:
                 return False
 
     def _abandon_write(self) -> None:
-        n = self._dir.next_file
+        n = self._d().next_file
         if self._reader and self._reader.slot == n:
             self._reader = None
-        if self._dir.last_job == n:
-            self._dir = replace(self._dir, last_job=NO_JOB)
+        if self._d().last_job == n:
+            self._dir = replace(self._d(), last_job=NO_JOB)
         self._writing = False
 
     def _expected_chunk(self) -> int:
@@ -455,7 +467,7 @@ class FileSystem:
             if not self._store_block(tail.ljust(BLOCK_SIZE, b"\0")):
                 return False
             self._write_length = sequence * BLOCK_SIZE + len(tail)
-        d = self._dir = self._with_write_length(self._dir)
+        d = self._dir = self._with_write_length(self._d())
         n = d.next_file
         if d.slots[n].length == 0:
             self._abandon_write()  # a zero-length file is not committed
@@ -469,7 +481,7 @@ class FileSystem:
                             next_write_block=self._write_pos)
         # Step 1: the new slot (still outside the ring), the ring-full drop, and
         # last_job parked at "none" if it is to change; step 2: the ring grows.
-        on = self._on_card
+        on = self._card_dir()
         staged = replace(on, first_file=first,
                          last_job=on.last_job if on.last_job == last_job else NO_JOB)
         staged = staged.with_slot(n, d.slots[n])
@@ -480,7 +492,7 @@ class FileSystem:
         """The printer's search, newest first: a file whose 16 id bytes equal `file_id`
         (the upload under way too, unless the id is empty), or, for an empty id, the
         last job. An empty id therefore opens a newer file stored with an empty id."""
-        d = self._dir
+        d = self._d()
         empty = file_id[0] == 0
         candidates = list(reversed(d.ring()))
         if not empty and self._writing:
@@ -501,11 +513,11 @@ class FileSystem:
         index = self._find(lookup)
         if index is None:
             return False
-        slot = self._dir.slots[index]
+        slot = self._d().slots[index]
         self._reader = _Reader(index, slot.start_block, 0)
-        if slot.job and self._dir.last_job != index:
-            self._dir = replace(self._dir, last_job=index)
-            if not (self._writing and index == self._dir.next_file):
+        if slot.job and self._d().last_job != index:
+            self._dir = replace(self._d(), last_job=index)
+            if not (self._writing and index == self._d().next_file):
                 return self._update([])
         return True
 
@@ -514,11 +526,11 @@ class FileSystem:
         without touching the open read or the last job. None if there is none."""
         if not self._ensure_mounted():
             return None
-        index = newest_with_id(self._dir, bytes(file_id)[:ID_SIZE].ljust(ID_SIZE, b"\0"))
+        index = newest_with_id(self._d(), bytes(file_id)[:ID_SIZE].ljust(ID_SIZE, b"\0"))
         if index is None:
             return None
         parts = []
-        for block, size in file_blocks(self._dir.slots[index], self.card.capacity):
+        for block, size in file_blocks(self._d().slots[index], self.card.capacity):
             data = self._read_block(block)
             if data is None:
                 return None
@@ -527,7 +539,7 @@ class FileSystem:
 
     def _reading_file_being_written(self) -> bool:
         return self._writing and self._reader is not None and \
-            self._reader.slot == self._dir.next_file
+            self._reader.slot == self._d().next_file
 
     def read(self) -> bytes:
         """Up to 512 bytes of the file open for reading; b"" for nothing (yet)."""
@@ -562,20 +574,20 @@ class FileSystem:
         """Id of the file open for reading, or None."""
         if self._reader is None or self._dir is None:
             return None
-        return self._dir.slots[self._reader.slot].id
+        return self._d().slots[self._reader.slot].id
 
     # ----------------------------------------------------------- reporting
     def file_list(self) -> list[bytes]:
         """Ids of the committed files, oldest first."""
         if not self._ensure_mounted():
             return []
-        return [self._dir.slots[i].id for i in self._dir.ring()]
+        return [self._d().slots[i].id for i in self._d().ring()]
 
     def send_file_report(self) -> tuple[bytes, int]:
         """Id of the file being written (all NUL if none) and its next chunk number."""
         if self._dir is None or not self._writing:
             return bytes(ID_SIZE), 0
-        return self._dir.slots[self._dir.next_file].id, self._expected_chunk()
+        return self._d().slots[self._d().next_file].id, self._expected_chunk()
 
     def _mounted_quietly(self) -> bool:
         """Mounted, or mounted now; no card is no error here (nonvolatile data is
@@ -591,16 +603,16 @@ class FileSystem:
     def nonvolatile(self, index: int) -> int:
         if not self._mounted_quietly():
             return 0
-        return self._dir.nonvolatile[index]
+        return self._d().nonvolatile[index]
 
     def set_nonvolatile(self, index: int, value: int) -> bool:
         if not self._mounted_quietly():
             return False
-        data = bytearray(self._dir.nonvolatile)
+        data = bytearray(self._d().nonvolatile)
         if data[index] == value:
             return True
         data[index] = value
-        self._dir = replace(self._dir, nonvolatile=bytes(data))
+        self._dir = replace(self._d(), nonvolatile=bytes(data))
         return self._update([])
 
     def check_for_head_change(self, dual_material: bool) -> None:
@@ -608,6 +620,6 @@ class FileSystem:
         forgotten, so a button press cannot reprint it with the wrong head."""
         if not self._mounted_quietly():
             return
-        if self._dir.nonvolatile[1] != int(dual_material):
-            self._dir = replace(self._dir, last_job=NO_JOB)
+        if self._d().nonvolatile[1] != int(dual_material):
+            self._dir = replace(self._d(), last_job=NO_JOB)
             self.set_nonvolatile(1, int(dual_material))

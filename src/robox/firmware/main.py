@@ -128,7 +128,7 @@ class Firmware:
         self.motion.maintain()
         self.eeproms.maintain()
         if not self.hw.card.present:  # all the file system's maintain() looks at
-            self.file_system.maintain()  # (an interpreted call: spared while it is there)
+            self.file_system.maintain()
         self.command.maintain()
         self.user_interface.maintain()
         self.heaters.maintain()
