@@ -245,7 +245,8 @@ class Machine:
                 f.tail += n
                 if nozzle > f.tip:
                     f.tip = nozzle
-                self._turn_wheel(axis, n)
+                if not self.wheel_slipping[axis]:  # (_turn_wheel, written out: every run)
+                    self.wheel_passed[axis] += n
                 return
             moved = 0  # pushed against a cold nozzle: the drive slips
             if nozzle > f.tip:
