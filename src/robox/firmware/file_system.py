@@ -314,9 +314,10 @@ class FileSystem:
         return d.with_slot(d.next_file, replace(slot, length=self._write_length))
 
     def _length(self, index: int) -> int:
-        if self._writing and index == self._d().next_file:
+        d = self._d()
+        if self._writing and index == d.next_file:
             return self._write_length
-        return self._d().slots[index].length
+        return d.slots[index].length
 
     def _copy_location(self, target: Directory) -> int | None:
         """The write position, if no committed file (before or after) lies there."""
@@ -421,11 +422,12 @@ class FileSystem:
                 return False
 
     def _abandon_write(self) -> None:
-        n = self._d().next_file
+        d = self._d()
+        n = d.next_file
         if self._reader and self._reader.slot == n:
             self._reader = None
-        if self._d().last_job == n:
-            self._dir = replace(self._d(), last_job=NO_JOB)
+        if d.last_job == n:
+            self._dir = replace(d, last_job=NO_JOB)
         self._writing = False
 
     def _expected_chunk(self) -> int:
@@ -513,11 +515,12 @@ class FileSystem:
         index = self._find(lookup)
         if index is None:
             return False
-        slot = self._d().slots[index]
+        d = self._d()
+        slot = d.slots[index]
         self._reader = _Reader(index, slot.start_block, 0)
-        if slot.job and self._d().last_job != index:
-            self._dir = replace(self._d(), last_job=index)
-            if not (self._writing and index == self._d().next_file):
+        if slot.job and d.last_job != index:
+            self._dir = replace(d, last_job=index)
+            if not (self._writing and index == d.next_file):
                 return self._update([])
         return True
 
@@ -581,13 +584,15 @@ class FileSystem:
         """Ids of the committed files, oldest first."""
         if not self._ensure_mounted():
             return []
-        return [self._d().slots[i].id for i in self._d().ring()]
+        d = self._d()
+        return [d.slots[i].id for i in d.ring()]
 
     def send_file_report(self) -> tuple[bytes, int]:
         """Id of the file being written (all NUL if none) and its next chunk number."""
         if self._dir is None or not self._writing:
             return bytes(ID_SIZE), 0
-        return self._d().slots[self._d().next_file].id, self._expected_chunk()
+        d = self._d()
+        return d.slots[d.next_file].id, self._expected_chunk()
 
     def _mounted_quietly(self) -> bool:
         """Mounted, or mounted now; no card is no error here (nonvolatile data is
@@ -608,11 +613,12 @@ class FileSystem:
     def set_nonvolatile(self, index: int, value: int) -> bool:
         if not self._mounted_quietly():
             return False
-        data = bytearray(self._d().nonvolatile)
+        d = self._d()
+        data = bytearray(d.nonvolatile)
         if data[index] == value:
             return True
         data[index] = value
-        self._dir = replace(self._d(), nonvolatile=bytes(data))
+        self._dir = replace(d, nonvolatile=bytes(data))
         return self._update([])
 
     def check_for_head_change(self, dual_material: bool) -> None:
@@ -620,6 +626,7 @@ class FileSystem:
         forgotten, so a button press cannot reprint it with the wrong head."""
         if not self._mounted_quietly():
             return
-        if self._d().nonvolatile[1] != int(dual_material):
-            self._dir = replace(self._d(), last_job=NO_JOB)
+        d = self._d()
+        if d.nonvolatile[1] != int(dual_material):
+            self._dir = replace(d, last_job=NO_JOB)
             self.set_nonvolatile(1, int(dual_material))
