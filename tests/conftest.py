@@ -19,6 +19,15 @@ for _module, _attribute, _help in LAZY_COMMANDS.values():
 
 import pytest  # noqa: E402
 
+#: The tests that take minutes (the pure-Python build runs the model's tests again) or tens
+#: of seconds (each builds a wheel). They run first: when the suite is spread over the
+#: machine's cores (README: pytest -n auto), none is then left running alone at the end.
+FIRST = ("tests/unit/test_pure_build.py", "tests/unit/test_build_kinds.py")
+
+
+def pytest_collection_modifyitems(items):
+    items.sort(key=lambda item: not item.nodeid.startswith(FIRST))  # (a stable sort)
+
 
 @pytest.fixture(autouse=True)
 def _own_state_home(tmp_path_factory, monkeypatch):

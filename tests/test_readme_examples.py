@@ -32,7 +32,7 @@ NOT_RUN_HERE = {
     "python3 -m venv .venv && .venv/bin/pip install -q . && .venv/bin/robox-cli --device sim "
     "send-job src/robox/data/example.gcode --wait": "tests/test_readme.py runs its last part",
     "python3 -m venv .venv && .venv/bin/pip install -q '.[test]' && .venv/bin/python -m "
-    "pytest -q": "this is the test command itself",
+    "pytest -q -n auto": "this is the test command itself",
     "sudo cp src/robox/data/60-robox.rules /etc/udev/rules.d/": "needs root",
     "sudo udevadm control --reload && sudo udevadm trigger": "needs root",
     "sudo usermod -aG plugdev $USER": "needs root",
