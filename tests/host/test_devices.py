@@ -1,6 +1,8 @@
 """Device selection and USB faults, with virtual printers standing in for attached ones."""
 
 import errno
+import os
+import termios
 
 import pytest
 import usb.core
@@ -8,7 +10,7 @@ from click.testing import CliRunner
 
 from robox.cli import cli
 from robox.host import devices
-from robox.host.transport import PermissionDenied, UsbTransport
+from robox.host.transport import Disconnected, PermissionDenied, SerialTransport, UsbTransport
 from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
 from tests.cli.test_sdcard_cli import one_line_error
@@ -171,3 +173,26 @@ def test_a_printer_another_program_uses_is_listed_as_in_use_and_refused(monkeypa
     finally:
         os.close(held)
     assert "RBX-BUSY-0001  firmware" in run("printers").output
+
+
+def test_a_serial_port_gone_between_the_write_and_its_drain_is_a_disconnect(tmp_path):
+    """pyserial's flush() is termios.tcdrain, whose failure is a termios.error, not an
+    OSError: a printer's tty (or a served printer's pty) that goes between the write and
+    the drain is a disconnect like any other, never a traceback. Here the port's
+    descriptor is turned into a plain file's after it opened: the write lands, the drain
+    fails as it does on a dead tty."""
+    master, slave = os.openpty()
+    port = SerialTransport(os.ttyname(slave))
+    try:
+        sink = os.open(tmp_path / "sink", os.O_WRONLY | os.O_CREAT)
+        os.dup2(sink, port.port.fileno())
+        os.close(sink)
+        with pytest.raises(termios.error):  # what the drain itself raises
+            termios.tcdrain(port.port.fileno())
+        with pytest.raises(Disconnected):
+            port.write(b"\xb0")
+        assert (tmp_path / "sink").read_bytes() == b"\xb0"
+    finally:
+        port.close()
+        os.close(master)
+        os.close(slave)

@@ -15,6 +15,13 @@ from pathlib import Path
 from robox.errors import RoboxError
 from robox.locks import lock_port, port_lock
 
+try:
+    from termios import error as _termios_error
+
+    _TTY_ERRORS: tuple[type[Exception], ...] = (_termios_error,)
+except ImportError:  # pragma: no cover - a system without termios (Windows)
+    _TTY_ERRORS = ()
+
 VENDOR_ID = 0x16D0
 PRODUCT_ID = 0x081B
 DATA_INTERFACE = 1
@@ -165,7 +172,10 @@ class SerialTransport(_PortLock):
         try:
             self.port.write(data)
             self.port.flush()
-        except (self._serial.SerialException, OSError):
+        except (self._serial.SerialException, OSError, *_TTY_ERRORS):
+            # (pyserial's flush is termios.tcdrain, whose error is no OSError: a port gone
+            # between the write and the drain, an unplugged printer's or a killed
+            # server's pty, fails there with EIO)
             raise Disconnected("the printer was disconnected") from None
 
     def read(self, limit: int, timeout_ms: int = 5000) -> bytes:
