@@ -266,6 +266,35 @@ def test_the_queued_length_kept_is_the_queued_blocks_lengths_added_up():
     assert all(kept == total for kept, total in seen)
 
 
+AXIS_SPU = [SPU["X"], SPU["Y"], SPU["Z"], SPU["E"], SPU["E"]]  # X, Y, Z, E, D
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.lists(st.one_of(st.just(0.0), st.floats(-30.0, 30.0, width=32)),
+                         min_size=5, max_size=5), min_size=2, max_size=12))
+def test_each_block_has_the_steps_increments_and_movers_of_its_own_move(moves):
+    """add_block_to_buffer: a block's length is its largest axis's whole steps, each
+    axis's increment is floor(65536 * steps / length) (16.16), and the axes the
+    interrupt steps are those whose increment is not 0, in axis order. Moves one after
+    another, with axes idle in one and moving in the next: nothing of a block carries
+    into the one after it."""
+    motion = fresh_wire().fw.motion
+    for move in moves:
+        steps = [math.floor(f32(f32(m) * f32(spu)) + 0.5)
+                 for m, spu in zip(move, AXIS_SPU, strict=True)]
+        length = max(abs(n) for n in steps)
+        at = motion.buffer_in
+        queued = motion.queue_block(50.0, 0.0, False, vec[float]([*move, 0.0]))
+        assert queued == (length > 0)
+        if not queued:
+            continue
+        incs = [math.floor(65536.0 * n / length) for n in steps] + [0]
+        blk = motion.block[at]
+        assert blk.length == length
+        assert list(blk.inc) == incs
+        assert list(blk.movers) == [i for i, inc in enumerate(incs) if inc]
+
+
 BACK_OFF = math.floor(f32(0.75 * f32(133.7)) + 0.5)  # 100 steps off a closed switch
 
 

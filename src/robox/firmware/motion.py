@@ -47,7 +47,7 @@ from robox.firmware.carith import sqrt as csqrt
 from robox.firmware.gcode import EMPTY_WAIT, READY_WAIT, Waits, wait_for
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, Machine, X, Y, Z
-from robox.packed import append, vec
+from robox.packed import vec
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
@@ -81,6 +81,11 @@ NORMAL: Final = 0
 LOADING: Final = 1
 UNLOADING: Final = 2
 UNTIL_SLIP: Final = 3
+
+
+#: The movers of a block for each set of moving axes (bit i: axis i moves): shared, never
+#: changed once made (compiled, a block's list is then one lookup, not a vector grown)
+MOVERS: Final = tuple(vec[i64]([i for i in range(6) if mask >> i & 1]) for mask in range(64))
 
 
 class Block:
@@ -195,6 +200,7 @@ class Motion:
         # down (is_buffer_ready_for_more adds them up each time it asks)
         self.queued_length: i64 = 0
         self.acc = vec[i64]([0] * 6)
+        self._block_steps = vec[i64]([0] * 6)  # queue_block's scratch: each axis's steps
         self.active = False
         # the interrupt's own copy of the wheels' levels; starts unknown (0)
         self.last_index = vec[i64]([0, 0])
@@ -404,20 +410,23 @@ class Motion:
         generator per block."""
         parameters = self.fw.parameters
         spu = parameters.steps_per_unit
-        steps = vec[i64]([0] * 6)
-        length = 0
+        steps = self._block_steps  # (every item written below: no vector made per block)
+        length: i64 = 0
         # An axis that does not move costs nothing below: every float32() of a zero is
         # zero, and max() with a zero leaves the running value as it was. (Each list item
         # is read into a typed local once: compiled, one unboxing, native arithmetic.)
         for i in range(6):
             move: float = moves[i]
+            n: i64 = 0
             if move:
-                n: int = self._steps(i, move, spu[i])
+                n = self._steps(i, move, spu[i])
                 steps[i] = n
                 if n < 0:
                     n = -n
                 if n > length:
                     length = n
+            else:
+                steps[i] = 0
         if length < 1:
             for i in range(6):
                 moves[i] = 0.0
@@ -451,7 +460,7 @@ class Motion:
                         min_duration = float32(max(min_duration, abs(move) / speed_limit))
                 if min_duration > 0.0:
                     speed = min(float32(MAX_SPEED),
-                                float32(length) / (SPEED_UNITS * min_duration))
+                                float32(float(length)) / (SPEED_UNITS * min_duration))
                 else:
                     speed = float(MAX_SPEED)
             else:
@@ -459,35 +468,35 @@ class Motion:
             blk.speed = max(MIN_SPEED, to_ushort(speed))
         else:
             blk.speed = MIN_SPEED
-        movers = vec[i64]()
+        moving: i64 = 0  # the movers, bit i for axis i
         exact = length < 16777216  # whole numbers below 2**24 are floats as they are
-        f32_length = float(length) if exact else float32(length)
+        f32_length = float(length) if exact else float32(float(length))
         incs = blk.inc
         before = self.block[(self.buffer_in - 1) & MASK].inc
         turn: i64 = 0
         for i in range(6):
-            count: int = steps[i]
+            count: i64 = steps[i]
             per_unit: float = spu[i]
-            inc: int = 0
+            inc: i64 = 0
             if not count:
                 # floor(0.5) / steps per unit: 0, unless M92 made that 0 or NaN
                 moves[i] = 0.0 if per_unit > 0.0 else float32(div(0.0, per_unit))
             else:
-                f32_steps = float(count) if exact else float32(count)
+                f32_steps = float(count) if exact else float32(float(count))
                 inc = math.floor(65536.0 * f32_steps / f32_length)
-                product = float32(float32(inc) * f32_length)
+                product = float32(float32(float(inc)) * f32_length)
                 moves[i] = float32(div(math.floor((product + 32768.0) / 65536.0), per_unit))
                 if inc:
-                    movers = append(movers, i)
+                    moving |= 1 << i
             incs[i] = inc
             change: i64 = inc - before[i]
             if change < 0:
                 change = -change
             if change > turn:
                 turn = change
-        blk.movers = movers
+        blk.movers = MOVERS[moving]
         blk.turn = turn
-        if len(movers):  # make_motor_active() for each axis that moves, once for them all
+        if moving:  # make_motor_active() for each axis that moves, once for them all
             self.machine.motors_on = True
         if incs[B]:
             self.fw.heaters.set_head_power(True)
