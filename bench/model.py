@@ -1,12 +1,15 @@
 #!/usr/bin/env python3
 """The firmware model on a real slicer's G-code: upload through the protocol, print to the end.
 
-Usage: python bench/model.py [--quick] [--empty]
+Usage: python bench/model.py [--quick] [--empty] [--repeat N]
 Needs slic3r on the PATH (Debian: apt-get install slic3r), and PrusaSlicer
 (apt-get install prusa-slicer) for the second part. The model is made here (a
 twisted star tower, written as a binary STL); the G-code is cached in
 bench/.cache/. Two measurements, each beside a trivial Python loop over the
-same file (`for line in f: line.split()`) timed in the same run:
+same file (`for line in f: line.split()`) timed in the same run. The ratios are of
+CPU time to CPU time (the process's own, or the child's): on a machine that other work
+shares, wall time counts the waits for a core too. The trivial loop is the median of
+five passes over the file, timed beside each run it is compared with:
 
 1. the model alone: slic3r's volumetric G-code sent frame by frame over the
    in-memory USB link and printed to the end (lines/s, upload MB/s, simulated
@@ -33,6 +36,10 @@ simulate loads its own); `--empty` measures the printer with empty feeds instead
 (simulate is then left out). Each figure gives wall and CPU seconds (the process's
 own, or the child's) and simulated time over each.
 
+The whole path and simulate (2. and 3.) run `--repeat` times (default 3), each on a
+fresh state: their figures are the medians, and the ratio's range over the runs is
+given beside it, since a run of a few seconds moves with whatever else the machine does.
+
 Asserts nothing.
 """
 
@@ -42,6 +49,7 @@ import math
 import os
 import resource
 import shutil
+import statistics
 import struct
 import subprocess
 import sys
@@ -152,15 +160,41 @@ def prusa_gcode(size: str) -> Path | None:
     return gcode
 
 
-def plain_loop_rate(path: Path) -> float:
-    """Lines per second of `for line in f: line.split()` over the file."""
-    start = time.perf_counter()
-    lines = 0
-    with open(path, "rb") as f:
-        for line in f:
-            line.split()
-            lines += 1
-    return lines / (time.perf_counter() - start)
+def plain_loop_rate(path: Path, passes: int = 5) -> float:
+    """Lines per CPU second of `for line in f: line.split()` over the file: the median of
+    `passes` passes (one pass over the smaller file takes tens of milliseconds)."""
+    rates = []
+    for _ in range(passes):
+        start = time.process_time()
+        lines = 0
+        with open(path, "rb") as f:
+            for line in f:
+                line.split()
+                lines += 1
+        rates.append(lines / (time.process_time() - start))
+    return statistics.median(rates)
+
+
+def repeats() -> int:
+    """How many times the whole path and simulate run (--repeat N; default 3)."""
+    if "--repeat" not in sys.argv:
+        return 3
+    at = sys.argv.index("--repeat") + 1
+    try:
+        n = int(sys.argv[at])
+    except (IndexError, ValueError):
+        raise SystemExit("bench/model.py: --repeat takes a whole number of runs") from None
+    if n < 1:
+        raise SystemExit("bench/model.py: --repeat takes at least 1 run")
+    return n
+
+
+def ratio_text(ratios: list[float]) -> str:
+    """The median ratio, and its range where there is more than one."""
+    text = f"ratio {statistics.median(ratios):.4f}"
+    if len(ratios) > 1:
+        text += f" ({min(ratios):.4f}-{max(ratios):.4f} over {len(ratios)} runs)"
+    return text
 
 
 PEAK_PROBE = """
@@ -204,31 +238,39 @@ def fresh_state(tmp: Path, loaded: bool) -> Path:
     return state
 
 
-def whole_path(path: Path, loaded: bool) -> tuple[float, float]:
+def whole_path(path: Path, loaded: bool, repeat: int) -> tuple[float, float]:
     """robox-cli send-job --wait on a fresh state directory (filament in its feed unless
-    `loaded` is False), in its own process; the peak resident memory in MB, and the
-    rate in lines/s."""
+    `loaded` is False), in its own process, `repeat` times; the peak resident memory in
+    MB (the largest), and the median rate in lines per wall second."""
     with open(path, "rb") as f:
         lines = sum(1 for _ in f)
-    plain = plain_loop_rate(path)
-    with tempfile.TemporaryDirectory() as tmp:
-        state = fresh_state(Path(tmp), loaded)
-        start = time.perf_counter()
-        out, peak, cpu = robox_cli("--device", f"sim-once:{state}", "send-job", str(path),
-                                   "--wait", "--json")
-        wall = time.perf_counter() - start
-    summary = json.loads(out)
-    rate = lines / wall
-    simulated = summary["simulated_print_time_s"]
+    walls, cpus, plains, ratios, peaks, errors = [], [], [], [], [], set()
+    for _ in range(repeat):
+        plain = plain_loop_rate(path)
+        with tempfile.TemporaryDirectory() as tmp:
+            state = fresh_state(Path(tmp), loaded)
+            start = time.perf_counter()
+            out, peak, cpu = robox_cli("--device", f"sim-once:{state}", "send-job",
+                                       str(path), "--wait", "--json")
+            wall = time.perf_counter() - start
+        summary = json.loads(out)
+        simulated = summary["simulated_print_time_s"]  # (the same in every run)
+        errors.update(summary["errors"])
+        walls.append(wall)
+        cpus.append(cpu)
+        plains.append(plain)
+        ratios.append(lines / cpu / plain)
+        peaks.append(peak)
+    wall, cpu, plain = (statistics.median(v) for v in (walls, cpus, plains))
     print(f"PrusaSlicer G-code {path.name}: {path.stat().st_size / 1e6:.2f} MB, {lines} "
           "lines, through robox-cli --device sim-once:DIR send-job --wait "
           f"({'filament in the feed' if loaded else 'empty feeds'})")
-    print(f"  whole path: {wall:.2f} s wall, {cpu:.2f} s CPU, {rate:,.0f} lines/s; trivial "
-          f"loop {plain:,.0f} lines/s; ratio {rate / plain:.4f}")
+    print(f"  whole path: {wall:.2f} s wall, {cpu:.2f} s CPU, {lines / cpu:,.0f} lines per "
+          f"CPU second; trivial loop {plain:,.0f}; {ratio_text(ratios)}")
     print(f"  simulated print time {simulated / 3600:.2f} h; simulated / wall = "
           f"{simulated / wall:,.0f}x, / CPU = {simulated / cpu:,.0f}x; "
-          f"peak RSS {peak:.0f} MB; errors {summary['errors'] or 'none'}")
-    return peak, rate
+          f"peak RSS {max(peaks):.0f} MB; errors {', '.join(sorted(errors)) or 'none'}")
+    return max(peaks), lines / wall
 
 
 def server_cpu(pid: int) -> float:
@@ -321,21 +363,27 @@ def served_upload(speeds: tuple[float, ...], size: int = 100_000) -> None:
               f"{in_process_s / speed / wall:.0%} of the in-process rate")
 
 
-def simulate_path(path: Path) -> None:
-    """robox-cli simulate FILE --json in its own process."""
+def simulate_path(path: Path, repeat: int) -> None:
+    """robox-cli simulate FILE --json in its own process, `repeat` times."""
     with open(path, "rb") as f:
         lines = sum(1 for _ in f)
-    plain = plain_loop_rate(path)
-    start = time.perf_counter()
-    out, peak, cpu = robox_cli("simulate", str(path), "--json", ok=(0, 1))
-    wall = time.perf_counter() - start
-    report = json.loads(out)
-    rate = lines / wall
+    walls, cpus, ratios, peaks = [], [], [], []
+    for _ in range(repeat):
+        plain = plain_loop_rate(path)
+        start = time.perf_counter()
+        out, peak, cpu = robox_cli("simulate", str(path), "--json", ok=(0, 1))
+        walls.append(time.perf_counter() - start)
+        cpus.append(cpu)
+        ratios.append(lines / cpu / plain)
+        peaks.append(peak)
+    report = json.loads(out)  # (the same report every run)
+    wall, cpu = statistics.median(walls), statistics.median(cpus)
     simulated = report["print_time_s"]
     d = report["deposition"] or {}
-    print(f"  simulate: {wall:.2f} s wall, {cpu:.2f} s CPU, {rate:,.0f} lines/s; ratio "
-          f"{rate / plain:.4f}; simulated / CPU = {simulated / cpu:,.0f}x; peak RSS "
-          f"{peak:.0f} MB; blobs {d.get('blob_mm3')} mm3, starved {d.get('starved_mm')} mm")
+    print(f"  simulate: {wall:.2f} s wall, {cpu:.2f} s CPU, {lines / cpu:,.0f} lines per CPU "
+          f"second; {ratio_text(ratios)}; simulated / CPU = {simulated / cpu:,.0f}x; peak "
+          f"RSS {max(peaks):.0f} MB; blobs {d.get('blob_mm3')} mm3, starved "
+          f"{d.get('starved_mm')} mm")
 
 
 def host_text(raw: bytes) -> bytes:
@@ -354,6 +402,7 @@ def host_text(raw: bytes) -> bytes:
 def main() -> None:
     print(f"measuring {build()}")
     quick = "--quick" in sys.argv
+    repeat = repeats()
     path = sliced_gcode(quick)
     job = host_text(path.read_bytes())
     lines = job.count(b"\r")
@@ -389,8 +438,8 @@ def main() -> None:
     print(f"  upload (printing meanwhile): {uploaded:.2f} s, {len(job) / 1e6 / uploaded:.2f} MB/s,"
           f" {lines_during_upload} lines printed by its end")
     plain = plain_loop_rate(path)
-    print(f"  whole job: {wall:.2f} s wall, {cpu:.2f} s CPU, {lines / wall:,.0f} G-code "
-          f"lines/s; trivial loop {plain:,.0f} lines/s; ratio {lines / wall / plain:.4f}")
+    print(f"  whole job: {wall:.2f} s wall, {cpu:.2f} s CPU, {lines / cpu:,.0f} G-code "
+          f"lines per CPU second; trivial loop {plain:,.0f}; ratio {lines / cpu / plain:.4f}")
     print(f"  simulated print time {simulated / 3600:.2f} h; simulated / wall = "
           f"{simulated / wall:,.0f}x, / CPU = {simulated / cpu:,.0f}x")
     print(f"  finished: {('job finished', ident('bench')) in fw.events}; "
@@ -402,11 +451,11 @@ def main() -> None:
         return
     peaks = []
     for prusa in paths:
-        peak, rate = whole_path(prusa, loaded)
+        peak, rate = whole_path(prusa, loaded, repeat)
         peaks.append(peak)
         served_whole_path(prusa, loaded, rate)
         if loaded:
-            simulate_path(prusa)
+            simulate_path(prusa, repeat)
     if len(peaks) == 2:
         sizes_mb = [p.stat().st_size / 1e6 for p in paths]
         print(f"  peak RSS, {sizes_mb[1]:.1f} MB job over {sizes_mb[0]:.1f} MB job: "
