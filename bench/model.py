@@ -8,8 +8,8 @@ twisted star tower, written as a binary STL); the G-code is cached in
 bench/.cache/. Two measurements, each beside a trivial Python loop over the
 same file (`for line in f: line.split()`) timed in the same run. The ratios are of
 CPU time to CPU time (the process's own, or the child's): on a machine that other work
-shares, wall time counts the waits for a core too. The trivial loop is the median of
-five passes over the file, timed beside each run it is compared with:
+shares, wall time counts the waits for a core too. The trivial loop goes over the file
+again and again for a CPU second, timed beside each run it is compared with:
 
 1. the model alone: slic3r's volumetric G-code sent frame by frame over the
    in-memory USB link and printed to the end (lines/s, upload MB/s, simulated
@@ -160,19 +160,21 @@ def prusa_gcode(size: str) -> Path | None:
     return gcode
 
 
-def plain_loop_rate(path: Path, passes: int = 5) -> float:
-    """Lines per CPU second of `for line in f: line.split()` over the file: the median of
-    `passes` passes (one pass over the smaller file takes tens of milliseconds)."""
-    rates = []
-    for _ in range(passes):
-        start = time.process_time()
-        lines = 0
+def plain_loop_rate(path: Path, least_s: float = 1.0) -> float:
+    """Lines per CPU second of `for line in f: line.split()` over the file, passing over
+    it again until `least_s` CPU seconds have gone: one pass over the smaller file takes
+    tens of milliseconds, and a machine's speed moves over that long; the runs it is
+    compared with take seconds."""
+    lines = 0
+    start = time.process_time()
+    while True:
         with open(path, "rb") as f:
             for line in f:
                 line.split()
                 lines += 1
-        rates.append(lines / (time.process_time() - start))
-    return statistics.median(rates)
+        spent = time.process_time() - start
+        if spent >= least_s:
+            return lines / spent
 
 
 def repeats() -> int:
