@@ -219,7 +219,7 @@ class Motion:
         self._slip_thresholds = vec[i64]([0, 0])
 
     @staticmethod
-    def tick_of(seconds: float) -> int:
+    def tick_of(seconds: float) -> i64:
         """The timer tick nearest a moment of the simulated clock."""
         return int(seconds * TICKS_PER_S + 0.5)
 
@@ -646,7 +646,7 @@ class Motion:
             return 0
         return length - v + 1
 
-    def _advance(self, limit: int, cap: i64, a: i64) -> None:
+    def _advance(self, limit: i64, cap: i64, a: i64) -> None:
         """One interrupt, or a run of them, not past `limit` nor past `cap` counted
         interrupts (NO_CAP: no cap), with the acceleration `a`."""
         if not self.active:
@@ -686,7 +686,7 @@ class Motion:
         else:
             self._watched(blk, limit, m, cap)
 
-    def _watched(self, blk: Block, limit: int, m: Machine, cap: i64) -> None:
+    def _watched(self, blk: Block, limit: i64, m: Machine, cap: i64) -> None:
         """Interrupts of a block that watches a switch while its speed ramps (a homing, a
         valve run to its switch): a run of them as `_singles` takes them, or with the
         length held while the switch has not tripped, as far as the switch and the
@@ -715,7 +715,7 @@ class Motion:
             self._held_ramp(blk, limit, most)
         self.switch_abandon_counter = counter - (self.interrupts - before)
 
-    def _held_ramp(self, blk: Block, limit: int, most: i64) -> None:
+    def _held_ramp(self, blk: Block, limit: i64, most: i64) -> None:
         """Up to `most` interrupts that do not count the block's length down (its switch
         has not tripped): the interrupt's arithmetic with the square root's speed fixed
         by the held length, in a tight loop; the steps made at the end, all at once.
@@ -778,7 +778,7 @@ class Motion:
             return NO_CAP
         return ((quiet - 1) * 65536 - 65535) // biggest
 
-    def _wheel_cap(self, blk: Block, m: Machine) -> int:
+    def _wheel_cap(self, blk: Block, m: Machine) -> i64:
         """How many interrupts of this block can be made with the index wheels read once,
         before the first: each turning drive's steps may reach its wheel's next edge that
         way only at the last of them (the interrupt after it sees the new level, as one
@@ -864,7 +864,7 @@ class Motion:
         self.next_tick += self.timer_period
         self.interrupts += 1
 
-    def _singles(self, blk: Block, limit: int, cap: i64) -> None:
+    def _singles(self, blk: Block, limit: i64, cap: i64) -> None:
         """Interrupts one at a time while the speed ramps, the same arithmetic as
         `_interrupt` in a tight loop, for a block that watches no switch (or one that
         cannot change meanwhile, and has tripped: see `_watched`), and no further than
@@ -995,14 +995,14 @@ class Motion:
             acc[i] = (before + moved) & U32
             m.step(i, ((before & 0xFFFF) + moved) >> 16)
 
-    def _run_length(self, blk: Block, limit: int, m: Machine, cap: i64,
-                    a: i64) -> int:
+    def _run_length(self, blk: Block, limit: i64, m: Machine, cap: i64,
+                    a: i64) -> i64:
         """How many interrupts from now can be done at once (1: one at a time): the speed
         must stay exactly where it is for every one of them, no input the interrupt
         reads may change, the block may not end and `cap` counted ones are the most."""
         s = self.speed_x4k
         c = (blk.end_speed * blk.end_speed) >> 4
-        k: int
+        k: i64
         counting = (self.fw.job.abort_flag or self.switch_abandon_counter == 0
                     or (self.slip_select and self.filament_slip))
         watching = not counting
@@ -1037,7 +1037,7 @@ class Motion:
             k = wheels
         return k
 
-    def _batch(self, blk: Block, k: int, m: Machine) -> None:
+    def _batch(self, blk: Block, k: i64, m: Machine) -> None:
         """`k` interrupts at a constant speed, no input changing, the block not ending."""
         self._check_index_wheels()
         self._step_movers(blk, k)

@@ -356,7 +356,7 @@ class Machine:
             return self._switch_margin(select)
         return NEVER
 
-    def wheel_steps(self, axis: int, forward: bool) -> int:
+    def wheel_steps(self, axis: i64, forward: bool) -> i64:
         """The microsteps of drive `axis` (E, D) in one direction (`forward`: feeding)
         whose last may change its index wheel's level: the wheel turns with the
         filament, at most a microstep a step and never against the drive, so its next
