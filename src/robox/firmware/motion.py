@@ -420,13 +420,11 @@ class Motion:
             n: i64 = 0
             if move:
                 n = self._steps(i, move, spu[i])
-                steps[i] = n
-                if n < 0:
-                    n = -n
-                if n > length:
-                    length = n
-            else:
-                steps[i] = 0
+            steps[i] = n
+            if n < 0:
+                n = -n
+            if n > length:
+                length = n
         if length < 1:
             for i in range(6):
                 moves[i] = 0.0
