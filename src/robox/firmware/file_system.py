@@ -529,11 +529,12 @@ class FileSystem:
         without touching the open read or the last job. None if there is none."""
         if not self._ensure_mounted():
             return None
-        index = newest_with_id(self._d(), bytes(file_id)[:ID_SIZE].ljust(ID_SIZE, b"\0"))
+        d = self._d()
+        index = newest_with_id(d, bytes(file_id)[:ID_SIZE].ljust(ID_SIZE, b"\0"))
         if index is None:
             return None
         parts = []
-        for block, size in file_blocks(self._d().slots[index], self.card.capacity):
+        for block, size in file_blocks(d.slots[index], self.card.capacity):
             data = self._read_block(block)
             if data is None:
                 return None
