@@ -407,6 +407,28 @@ def test_g38_levels_a_tilted_gantry_from_two_z_homes(wire):
     assert wire.ack(b"\xb3")[ErrorBit.MAX_GANTRY_ADJUSTMENT] == "0"
 
 
+def test_after_g38_the_bed_correction_weighs_the_levelled_points(wire):
+    """level_gantry keeps the last two homes' points, the second's height now 0: the
+    correction that follows weighs those, not the points it weighed before."""
+    m = wire.printer.hw.machine
+    m.zb = round(2.0 * 6400)
+    run(wire, "G28 X Y", "G1 X20 F6000", "G28 Z", "G1 X200 F6000", "G28 Z")
+    position = wire.fw.position
+    position.z_washout = 0.5
+    before = list(position.levelling)
+    assert len(before) >= 2 and before[1][2] != 0.0
+    at_x = f32(f32(position.position[0] + 10.0) - position.tool_offset[0])
+    at_y = f32(f32(position.position[1] + 20.0) - position.tool_offset[1])
+    assert position.z_correction(10.0, 20.0, 0.2) == weighted_z(before, at_x, at_y, 0.2, 0.5)
+    run(wire, "G38")
+    (x0, y0, z0), (x1, y1, _) = before[:2]
+    after = [(x0, y0, z0), (x1, y1, 0.0)]
+    assert position.levelling == after
+    at_x = f32(f32(position.position[0] + 10.0) - position.tool_offset[0])
+    at_y = f32(f32(position.position[1] + 20.0) - position.tool_offset[1])
+    assert position.z_correction(10.0, 20.0, 0.2) == weighted_z(after, at_x, at_y, 0.2, 0.5)
+
+
 def test_g38_clamps_the_adjustment_at_ten_millimetres(wire):
     level_after_homes(wire, 15.0)
     m = wire.printer.hw.machine

@@ -395,7 +395,8 @@ class Firmware:
         reply sent while a line waits (a Pronterface line inside maintain_commands, say) is
         there to read at once, the lines before it answered."""
         end = self.clock.now + timeout
-        for _ in range(max_passes):
+        _count: i64  # (a native count: compiled, `_` would be boxed at every pass)
+        for _count in range(max_passes):
             if condition is not None and condition():
                 return True
             if self.clock.now >= end:

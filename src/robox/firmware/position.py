@@ -29,7 +29,7 @@ from robox.firmware.motion import FLT_MAX, READY_WAIT
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
 from robox.hardware.machine import AXES, B, D, E, X, Y, Z
-from robox.packed import i64, vec
+from robox.packed import append, i64, vec
 
 if TYPE_CHECKING:
     from robox.firmware.main import Firmware
@@ -96,7 +96,10 @@ class Position:
         self.home_delta = [0.0] * 6
         self.diameter = vec[float]([DEFAULT_DIAMETER, DEFAULT_DIAMETER])
         self.multiplier = vec[float]([1.0, 1.0])
+        #: (replaced, never changed in place: z_correction keeps it flattened, by identity)
         self.levelling: list[tuple[float, float, float]] = []
+        self._flat_of: list[tuple[float, float, float]] | None = None
+        self._flat = vec[float]()
         self.z_washout = 0.0
         self.what = NORMAL
         # filament queued since power-up (a model statistic)
@@ -123,14 +126,27 @@ class Position:
         self.levelling = [(x, y, 0.0), *shifted[: LEVELLING_POINTS - 1]]
 
     def z_correction(self, x_move: float, y_move: float, z_dest: float) -> float:
-        if not self.levelling:
+        points = self.levelling
+        if not points:
             return 0.0
+        if points is not self._flat_of:
+            # the points as one packed vector (compiled: native floats, where the tuples'
+            # items are boxed ones), made again when the list is replaced
+            flat = vec[float]()
+            for px, py, pz in points:
+                flat = append(flat, px)
+                flat = append(flat, py)
+                flat = append(flat, pz)
+            self._flat, self._flat_of = flat, points
+        flat = self._flat
         x = f32(f32(self.position[X] + x_move) - self.tool_offset[X])
         y = f32(f32(self.position[Y] + y_move) - self.tool_offset[Y])
         total = acc = 0.0
-        for px, py, pz in self.levelling:
-            dx = f32(px - x)
-            dy = f32(py - y)
+        j: i64
+        for j in range(0, len(flat), 3):
+            dx = f32(flat[j] - x)
+            dy = f32(flat[j + 1] - y)
+            pz = flat[j + 2]
             v = f32(f32(dx * dx) + f32(dy * dy))
             if v < 1.0e-10:
                 return pz
@@ -458,7 +474,7 @@ class Position:
             self.fw.errors.set(ErrorBit.MAX_GANTRY_ADJUSTMENT)
             adj = f32(max(-MAX_GANTRY_ADJUSTMENT, min(MAX_GANTRY_ADJUSTMENT, adj)))
         yield from self.motion.rotate_gantry(adj)
-        self.levelling[1] = (x1, y1, 0.0)
+        self.levelling = [self.levelling[0], (x1, y1, 0.0)]
         middle = 0.5 * f32(za + zb)
         self.position[Z] = f32(self.position[Z]
                                - adj * (middle - self.levelling[0][0]) / f32(zb - za))

@@ -13,13 +13,13 @@ from typing import Final
 
 from robox.errors import UsageError
 from robox.firmware.carith import f32
-from robox.packed import i64
+from robox.packed import i64, vec
 
 WIDTH = 8
 _NUMBER = re.compile(
     rb"\s*([+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|inf(?:inity)?|nan))", re.IGNORECASE)
 _FLOAT32_MAX = 3.4028234663852886e38
-_POWERS_OF_TEN: Final = [10.0**i for i in range(16)]  # each exact as a double
+_POWERS_OF_TEN: Final = vec[float]([10.0**i for i in range(16)])  # each exact as a double
 
 
 def to_float32(value: float) -> float:
@@ -87,7 +87,7 @@ def skip_blanks(text: bytes, i: i64) -> i64:
     return i
 
 
-def short_decimal(text: bytes, i: int, to_end: bool = False, end: i64 = -1) -> float:
+def short_decimal(text: bytes, i: i64, to_end: bool = False, end: i64 = -1) -> float:
     """strtod's value of a short plain decimal right at `i` (an optional sign, then at
     most 15 digits with at most one point among them, and no exponent or hexadecimal
     prefix after), NaN for anything else. Nearly every number a slicer writes, and
@@ -98,13 +98,19 @@ def short_decimal(text: bytes, i: int, to_end: bool = False, end: i64 = -1) -> f
     1e15, both exact as doubles, so their quotient is the correctly rounded value
     strtod gives (the classic exact case of decimal conversion)."""
     # (native integers: compiled, the digits are added up without overflow checks; the
-    # whole number stops growing past 16 digits, where the answer is NaN anyway)
-    n: i64 = len(text) if end < 0 else end
+    # whole number stops growing past 16 digits, where the answer is NaN anyway; each
+    # byte is made a native integer once, where compared as it is it is a tagged one)
+    n: i64 = len(text)
+    if end >= 0:
+        n = end
     negative = False
     k: i64 = i
-    if k < n and (text[k] == 45 or text[k] == 43):  # - or +
-        negative = text[k] == 45
-        k += 1
+    c: i64
+    if k < n:
+        c = text[k]
+        if c == 45 or c == 43:  # - or +
+            negative = c == 45
+            k += 1
     whole: i64 = 0
     digits: i64 = 0
     places: i64 = -1  # digits after the point (-1: no point yet)
@@ -121,7 +127,9 @@ def short_decimal(text: bytes, i: int, to_end: bool = False, end: i64 = -1) -> f
         else:
             break
         k += 1
-    after = text[k] | 0x20 if k < n else 0  # the byte after, lower-cased
+    after: i64 = 0  # the byte after, lower-cased
+    if k < n:
+        after = text[k] | 0x20
     if digits == 0 or digits > 15 or after == 101 or after == 120 or (to_end and k < n):
         return math.nan  # (e, x after it: not so short)
     value = float(whole) / _POWERS_OF_TEN[places] if places > 0 else float(whole)
