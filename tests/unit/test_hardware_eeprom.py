@@ -14,6 +14,27 @@ def test_single_byte_transactions_and_counters():
     assert (chip.transactions, chip.reads, chip.writes, chip.nacks) == (2, 1, 1, 0)
 
 
+def test_a_compared_read_is_a_read_as_the_chip_and_its_journal_count_it():
+    """read_matches(): the verify step's read, its byte compared where it is read (the
+    address wraps at the chip's end as read()'s does); unanswered, -1."""
+    clock = SimClock()
+    chip = EepromChip(bytes(range(256)) * 2, clock)
+    twin = EepromChip(bytes(range(256)) * 2, clock)
+    chip.journal, twin.journal = [], []
+    assert chip.read_matches(0x105, 5) == 1 and twin.read(0x105) == 5
+    assert chip.read_matches(0x205, 5) == 1 and twin.read(0x205) == 5  # (wrapped: 0x005)
+    assert chip.read_matches(0x105, 6) == 0 and twin.read(0x105) != 6
+    assert chip.write(3, 1) and twin.write(3, 1)  # the write cycle: the bus ignored
+    assert chip.read_matches(3, 1) == -1 and twin.read(3) is None
+    clock.advance(WRITE_CYCLE_S)
+    chip.unplug()
+    twin.unplug()
+    assert chip.read_matches(3, 1) == -1 and twin.read(3) is None
+    counts = (chip.transactions, chip.reads, chip.writes, chip.nacks, chip.journal)
+    assert counts == (twin.transactions, twin.reads, twin.writes, twin.nacks, twin.journal)
+    assert counts[:4] == (6, 3, 1, 2)
+
+
 def test_blank_by_default_and_any_starting_content():
     assert EepromChip().data == b"\xff" * 512
     assert EepromChip(bytes(512)).data == bytes(512)

@@ -117,6 +117,11 @@ def _spliced(buffer: bytes, offset: int, data: bytes) -> bytes:
     return buffer[:offset] + data + buffer[offset + len(data) :]
 
 
+def _settled(state: EepromState) -> bool:
+    """VALID, and both banks verified since the RAM copy last changed."""
+    return state.status is VALID and state.verified_banks >= 2
+
+
 def _given_up(state: EepromState, chip: EepromChip | None) -> bool:
     """An empty socket already given up: the step's read finds no chip, and its no-ack
     leaves everything as it is."""
@@ -203,13 +208,29 @@ class Eeproms:
         """One step, its transaction made with `chip`, the chip the bus reaches in the
         EEPROM's socket (None: none, and the transaction goes unacknowledged)."""
         address = self._address(state)
-        if state.status is VALID and state.writing:
-            if chip is None or not chip.write(address, state.buffer[state.counter]):
+        if state.status is VALID:
+            if chip is None:
+                self._no_ack(state)
+                return
+            if state.writing:
+                if not chip.write(address, state.buffer[state.counter]):
+                    self._no_ack(state)
+                    return
+                state.acked = True
+                state.last_ack = self.clock.now
+                state.writing = False  # the next step reads it back
+                return
+            # read and compare (compiled: the byte stays a native number)
+            found = chip.read_matches(address, state.buffer[state.counter])
+            if found < 0:
                 self._no_ack(state)
                 return
             state.acked = True
             state.last_ack = self.clock.now
-            state.writing = False  # the next step reads it back
+            if found:
+                self._advance(state)
+            else:
+                state.writing = True
             return
         value = None if chip is None else chip.read(address)
         if value is None:
@@ -217,12 +238,6 @@ class Eeproms:
             return
         state.acked = True
         state.last_ack = self.clock.now
-        if state.status is VALID:
-            if value == state.buffer[state.counter]:
-                self._advance(state)
-            else:
-                state.writing = True
-            return
         state.buffer = _spliced(state.buffer, state.counter, bytes((value,)))
         state.counter += 1
         if state.counter < BANK_SIZE:
@@ -412,10 +427,18 @@ class Eeproms:
         other step, so the next pass finds things as the passes one by one would have
         left them."""
         clock = self.clock
-        split = self._inert_split(clock.now + dt, most)
-        if split is None:
+        most = self._inert_most(clock.now + dt, most)
+        if most < 0:
             return 0
-        settled, loading, most = split
+        settled = []
+        loading = []  # the loading or verifying ones, each with its chip
+        for state in self.states:
+            if _settled(state):
+                settled.append(state)
+                continue
+            chip = self.bus.chip(state.index)
+            if chip is not None:  # (else given up: _inert_most saw no other kind)
+                loading.append((state, chip))
         if not settled:
             clock.advance(dt, most)
             for state, chip in loading:
@@ -478,12 +501,13 @@ class Eeproms:
         running them: the loop runs motion ahead only as far as the EEPROMs' steps in
         the passes it skips are inert."""
         now = self.clock.now
-        split = self._inert_split(now + dt, most)
-        if split is None:
+        most = self._inert_most(now + dt, most)
+        if most < 0:
             return 0
-        settled, _, most = split
-        if not settled:
+        states = self.states
+        if not (_settled(states[0]) or _settled(states[1]) or _settled(states[2])):
             return most
+        settled = [state for state in states if _settled(state)]
         # a settled EEPROM steps every QUIET_STEP_S; the first of its steps found not to
         # be inert ends the run (each inert step moves it one byte on, so its k-th step
         # from now is inert while k is below what the first finds). (Native locals and
@@ -513,26 +537,22 @@ class Eeproms:
                 last[j] = t
         return n
 
-    def _inert_split(self, at: float, most: int) -> tuple[list[EepromState],
-                                                         list[tuple[EepromState, EepromChip]],
-                                                         int] | None:
-        """The settled EEPROMs; the loading or verifying ones, each with its chip; and
-        `most` cut to the inert steps those have from a pass at `at` on. None when an
-        EEPROM in use has lost its chip (its next step is no inert read)."""
-        settled = []
-        loading = []
+    def _inert_most(self, at: float, most: i64) -> i64:
+        """`most` cut to the inert steps the loading or verifying EEPROMs have from a pass
+        at `at` on; -1 when an EEPROM in use has lost its chip (its next step is no inert
+        read). (Nothing made: compiled, this is asked before every run ahead.)"""
         for state in self.states:
-            if state.status is VALID and state.verified_banks >= 2:
-                settled.append(state)
+            if _settled(state):
                 continue
             chip = self.bus.chip(state.index)
             if _given_up(state, chip):
                 continue
             if chip is None:
-                return None
-            most = min(most, self._inert_steps(state, chip, at, most))
-            loading.append((state, chip))
-        return settled, loading, most
+                return -1
+            steps: i64 = self._inert_steps(state, chip, at, most)
+            if steps < most:
+                most = steps
+        return most
 
     def _inert_steps(self, state: EepromState, chip: EepromChip | None, at: float,
                      most: int) -> int:

@@ -90,6 +90,15 @@ class EepromChip:
         self.reads += 1
         return self.data[address % CHIP_SIZE]
 
+    def read_matches(self, address: int, expected: int) -> int:
+        """read(), its byte compared with `expected`: 1 when they match, 0 when not, -1
+        when the read is not acknowledged (a verify step's read: compiled, no byte
+        made an object on its way out)."""
+        if not self._acknowledges("read"):
+            return -1
+        self.reads += 1
+        return 1 if self.data[address % CHIP_SIZE] == expected else 0
+
     def write(self, address: int, value: int) -> bool:
         """One single-byte write; False when not acknowledged."""
         ordinal = self.transactions + 1
