@@ -149,7 +149,12 @@ class Eeproms:
     def initialise(self) -> None:
         now = self.clock.now
         self.states = [EepromState(index, last_ack=now) for index in EepromIndex]
-        self.previous = [NOT_PRESENT] * 3
+        # the three, and their statuses as the last pass left them, held one by one
+        # (compiled: looked at on every pass as attributes, no list indexed)
+        self._head, self._reel0, self._reel1 = self.states
+        self._was_head: Status = NOT_PRESENT
+        self._was_reel0: Status = NOT_PRESENT
+        self._was_reel1: Status = NOT_PRESENT
         self.update_due = now + UPDATE_PERIOD_S
 
     def maintain(self) -> None:
@@ -163,19 +168,19 @@ class Eeproms:
         if fw is None:
             return
         now = self.clock.now
-        states, previous = self.states, self.previous
-        if states[0].status is not previous[0] or states[1].status is not previous[1] \
-                or states[2].status is not previous[2]:  # (no list made on every pass)
-            statuses = [s.status for s in states]
+        head, reel0, reel1 = self._head.status, self._reel0.status, self._reel1.status
+        if head is not self._was_head or reel0 is not self._was_reel0 \
+                or reel1 is not self._was_reel1:
+            previous = [self._was_head, self._was_reel0, self._was_reel1]
             appeared = [s is VALID and p is not VALID
-                        for s, p in zip(statuses, previous, strict=True)]
-            self.previous = statuses
+                        for s, p in zip([head, reel0, reel1], previous, strict=True)]
+            self._was_head, self._was_reel0, self._was_reel1 = head, reel0, reel1
             if appeared[HEAD]:
                 fw.file_system.check_for_head_change(self.head_dual_material())
             if any(appeared):
                 fw.heaters.targets_from_reel()
                 fw.position.filament_info_from_reel()
-        if now - self.states[HEAD].last_ack >= TIMEOUT_S:
+        if now - self._head.last_ack >= TIMEOUT_S:
             fw.heaters.shut_down_head_due_to_eeprom()
         if now >= self.update_due:
             if fw.heaters.head_hot():
@@ -186,17 +191,20 @@ class Eeproms:
 
     def _maintain_chips(self) -> None:
         now = self.clock.now
+        bus = self.bus
         for state in self.states:
             # A settled EEPROM's verify step only reads what it already holds: it is
             # taken at most every QUIET_STEP_S, which still sees an unplug well within
             # the timeout (the spec's "accounted for without being replayed").
-            if now - state.last_step < QUIET_STEP_S and state.status is VALID \
+            status = state.status
+            if now - state.last_step < QUIET_STEP_S and status is VALID \
                     and state.verified_banks >= 2:
                 continue
             state.last_step = now
-            chip = self.bus.chip(state.index)
-            if _given_up(state, chip):
-                state.acked = False
+            chip = bus.chip(state.index)
+            if chip is None and status is NOT_PRESENT \
+                    and not (state.counter or state.working_bank or state.writing):
+                state.acked = False  # given up (_given_up, written out: every pass)
                 continue
             self._step(state, chip)
 
