@@ -266,6 +266,42 @@ def test_the_queued_length_kept_is_the_queued_blocks_lengths_added_up():
     assert all(kept == total for kept, total in seen)
 
 
+@pytest.mark.skipif("robox.firmware.main" in compiled_modules(),
+                    reason="a compiled class's methods cannot be replaced; the same source "
+                           "is checked by the pure-Python run")
+def test_the_drives_steps_kept_behind_the_block_under_way_are_the_queues():
+    """The running totals can_run_ahead() reads, each drive's steps in the blocks queued
+    behind the one at buffer_out, are after every pass of a job of extruding moves (E
+    forwards, then, from an empty queue, back) what walking the queue gives."""
+    from tests.firmware.wire import circle_job, ident
+
+    w = fresh_wire()
+    fw, motion = w.fw, w.fw.motion
+    run_passes = fw.run_passes
+    seen = []
+
+    def walked(axis: int) -> int:
+        total, n = 0, (motion.buffer_out + 1) & motion_module.MASK
+        while motion.buffer_out != motion.buffer_in and n != motion.buffer_in:
+            total += abs(motion.block[n].inc[axis]) * motion.block[n].length
+            n = (n + 1) & motion_module.MASK
+        return total
+
+    def checked(step, passes):
+        run_passes(step, passes)
+        seen.append((list(motion._tail), [walked(E), walked(D)]))
+
+    fw.run_passes = checked
+    # (after M400 the queue fills again from empty: a block queued behind a lone one)
+    back = job_text(["M400"] + [f"G1 X{60 + i} Y{40 + i % 7} E-0.6 F4000"
+                                for i in range(40)])
+    w.upload("tail", circle_job(80, heat=False) + back)
+    w.ok(b"\x94" + ident("tail"))
+    w.wait_job_done()
+    assert len(seen) > 300 and sum(1 for _, walk in seen if walk[0]) > 100
+    assert all(kept == walk for kept, walk in seen)
+
+
 AXIS_SPU = [SPU["X"], SPU["Y"], SPU["Z"], SPU["E"], SPU["E"]]  # X, Y, Z, E, D
 
 

@@ -199,6 +199,10 @@ class Motion:
         # the lengths of the queued blocks added up, kept as they are queued and counted
         # down (is_buffer_ready_for_more adds them up each time it asks)
         self.queued_length: i64 = 0
+        # the steps (16.16, their sizes) the queued blocks after the one at buffer_out
+        # make on each drive (E, D), kept as blocks are queued and begun: none of their
+        # lengths changes before it is begun (can_run_ahead adds the one under way)
+        self._tail = vec[i64]([0, 0])
         self.acc = vec[i64]([0] * 6)
         self._block_steps = vec[i64]([0] * 6)  # queue_block's scratch: each axis's steps
         self.active = False
@@ -501,6 +505,12 @@ class Motion:
             self.fw.heaters.force_nozzles_off(True)
         n = self.queued()
         b = self.buffer_in
+        if n > 0:  # behind the block at buffer_out: in the tail
+            tail = self._tail
+            for i in range(2):
+                drive: i64 = incs[E + i]
+                if drive:
+                    tail[i] += (drive if drive > 0 else -drive) * length
         self.buffer_in = (self.buffer_in + 1) & MASK
         self.queued_length += length
         a: i64 = self.parameters.acceleration  # (read once: nothing here changes it)
@@ -591,13 +601,10 @@ class Motion:
             if self.what == UNTIL_SLIP and self.filament_slip:
                 return False
             ahead: i64 = 0  # 16.16: the steps the queued blocks make on this drive
-            n = self.buffer_out
-            while n != self.buffer_in:
-                blk = self.block[n]
+            if self.buffer_out != self.buffer_in:
+                blk = self.block[self.buffer_out]
                 step: i64 = blk.inc[axis]
-                if step:
-                    ahead += (step if step > 0 else -step) * blk.length
-                n = (n + 1) & MASK
+                ahead = (step if step > 0 else -step) * blk.length + self._tail[i]
             if self._slip_count(axis) + ahead + 65536 > self._slip_threshold(i):
                 return False
         return True
@@ -655,7 +662,7 @@ class Motion:
                     for i in range(6):
                         acc[i] = (acc[i] & 0xFFFF0000) | 0x8000
                 else:  # never queued by the firmware; skipped as it would be
-                    self.buffer_out = (self.buffer_out + 1) & MASK
+                    self._next_block()
             if not self.active:  # idle: every interrupt until `limit` is the same
                 self.speed_x4k = MIN_SPEED << 12
                 self._check_index_wheels()
@@ -855,7 +862,7 @@ class Motion:
             blk.length -= 1
             self.queued_length -= 1
         if blk.length == 0:
-            self.buffer_out = (self.buffer_out + 1) & MASK
+            self._next_block()
             self.active = False
         self.timer_period = ((0x10000 << 12) // self.speed_x4k) & 0xFFFF
         self.last_tick = self.next_tick
@@ -978,8 +985,23 @@ class Motion:
         blk.length = length
         self._ran(blk, count, s, period, last, tick)
         if length == 0:
-            self.buffer_out = (self.buffer_out + 1) & MASK
+            self._next_block()
             self.active = False
+
+    def _next_block(self) -> None:
+        """buffer_out moves on from a block that has ended: the block it comes to, if
+        any, is under way and no longer in the tail."""
+        out = (self.buffer_out + 1) & MASK
+        self.buffer_out = out
+        if out != self.buffer_in:
+            blk = self.block[out]
+            inc = blk.inc
+            tail = self._tail
+            i: i64
+            for i in range(2):
+                step: i64 = inc[E + i]
+                if step:
+                    tail[i] -= (step if step > 0 else -step) * blk.length
 
     def _step_movers(self, blk: Block, n: i64) -> None:
         """`n` interrupts' worth of each moving axis's accumulator at once: the carries
