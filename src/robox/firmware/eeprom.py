@@ -196,15 +196,13 @@ class Eeproms:
             # A settled EEPROM's verify step only reads what it already holds: it is
             # taken at most every QUIET_STEP_S, which still sees an unplug well within
             # the timeout (the spec's "accounted for without being replayed").
-            status = state.status
-            if now - state.last_step < QUIET_STEP_S and status is VALID \
+            if now - state.last_step < QUIET_STEP_S and state.status is VALID \
                     and state.verified_banks >= 2:
                 continue
             state.last_step = now
             chip = bus.chip(state.index)
-            if chip is None and status is NOT_PRESENT \
-                    and not (state.counter or state.working_bank or state.writing):
-                state.acked = False  # given up (_given_up, written out: every pass)
+            if _given_up(state, chip):
+                state.acked = False
                 continue
             self._step(state, chip)
 
@@ -512,10 +510,9 @@ class Eeproms:
         most = self._inert_most(now + dt, most)
         if most < 0:
             return 0
-        states = self.states
-        if not (_settled(states[0]) or _settled(states[1]) or _settled(states[2])):
+        settled = [state for state in self.states if _settled(state)]
+        if not settled:
             return most
-        settled = [state for state in states if _settled(state)]
         # a settled EEPROM steps every QUIET_STEP_S; the first of its steps found not to
         # be inert ends the run (each inert step moves it one byte on, so its k-th step
         # from now is inert while k is below what the first finds). (Native locals and

@@ -88,6 +88,12 @@ UNTIL_SLIP: Final = 3
 MOVERS: Final = tuple(vec[i64]([i for i in range(6) if mask >> i & 1]) for mask in range(64))
 
 
+def _drive_steps(blk: Block, axis: i64) -> i64:
+    """The steps (16.16, their size) a block's length makes on `axis`."""
+    step: i64 = blk.inc[axis]
+    return (step if step > 0 else -step) * blk.length
+
+
 class Block:
     __slots__ = ("check_z_top", "end_speed", "inc", "length", "movers", "speed", "turn")
 
@@ -508,9 +514,7 @@ class Motion:
         if n > 0:  # behind the block at buffer_out: in the tail
             tail = self._tail
             for i in range(2):
-                drive: i64 = incs[E + i]
-                if drive:
-                    tail[i] += (drive if drive > 0 else -drive) * length
+                tail[i] += _drive_steps(blk, E + i)
         self.buffer_in = (self.buffer_in + 1) & MASK
         self.queued_length += length
         a: i64 = self.parameters.acceleration  # (read once: nothing here changes it)
@@ -602,9 +606,7 @@ class Motion:
                 return False
             ahead: i64 = 0  # 16.16: the steps the queued blocks make on this drive
             if self.buffer_out != self.buffer_in:
-                blk = self.block[self.buffer_out]
-                step: i64 = blk.inc[axis]
-                ahead = (step if step > 0 else -step) * blk.length + self._tail[i]
+                ahead = _drive_steps(self.block[self.buffer_out], axis) + self._tail[i]
             if self._slip_count(axis) + ahead + 65536 > self._slip_threshold(i):
                 return False
         return True
@@ -995,13 +997,10 @@ class Motion:
         self.buffer_out = out
         if out != self.buffer_in:
             blk = self.block[out]
-            inc = blk.inc
             tail = self._tail
             i: i64
             for i in range(2):
-                step: i64 = inc[E + i]
-                if step:
-                    tail[i] -= (step if step > 0 else -step) * blk.length
+                tail[i] -= _drive_steps(blk, E + i)
 
     def _step_movers(self, blk: Block, n: i64) -> None:
         """`n` interrupts' worth of each moving axis's accumulator at once: the carries
