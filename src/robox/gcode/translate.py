@@ -600,8 +600,11 @@ class Translator:
             except UsageError as e:
                 raise UsageError(f"line {s.lines_in}: {e}") from None
             s.lines_out += len(out)
-            yield from out
-            out.clear()
+            if len(out) == 1:  # (nearly every line: compiled, no iterator over the list)
+                yield out.pop()
+            else:
+                yield from out
+                out.clear()
         self._close(out)
         yield from self._count(out)
         if self.o.sequences:

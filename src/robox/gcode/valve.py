@@ -431,9 +431,17 @@ class ValveStage:
     def _close(self, out: list[bytes]) -> None:
         self.is_open = False
         ej = self._ejection()
-        start = self.open_at + 1 if self.open_at >= 0 else 0
-        moves = [k for k in range(start, len(self.buf)) if self.buf[k].kind == EXTRUDE]
-        total = sum(self.buf[k].e for k in moves)
+        buf = self.buf
+        moves: list[int] = []
+        total = 0.0  # (a loop: sum() adds generically compiled, with compensation from 3.12)
+        k: i64 = self.open_at + 1 if self.open_at >= 0 else 0
+        n: i64 = len(buf)
+        while k < n:
+            s = buf[k]
+            if s.kind == EXTRUDE:
+                moves.append(k)
+                total += s.e
+            k += 1
         opening = 1.0
         excess = 0.0
         if not moves:
@@ -525,22 +533,29 @@ class ValveStage:
         while k >= 0 and self.buf[moves[k]].feature == INNER:
             k -= 1
         run = moves[k + 1:end + 1]
-        if not run or sum(self.buf[i].e for i in run) < ej:
+        if not run:
+            return False
+        buf = self.buf
+        total = 0.0
+        for i in run:
+            total += buf[i].e
+        if total < ej:
             return False
         # contiguous moves of the run only (a travel inside it breaks the line)
-        seam = (self.x, self.y)
-        best = (math.inf, -1, 0.0)
+        seam_x, seam_y = self.x, self.y
+        best_d = math.inf
+        at = -1
+        t = 0.0
         for i in run:
-            s = self.buf[i]
+            s = buf[i]
             dx, dy = s.x - s.sx, s.y - s.sy
             length2 = dx * dx + dy * dy
-            t = 0.0 if length2 == 0 else max(0.0, min(1.0, ((seam[0] - s.sx) * dx
-                                                              + (seam[1] - s.sy) * dy)
+            u = 0.0 if length2 == 0 else max(0.0, min(1.0, ((seam_x - s.sx) * dx
+                                                              + (seam_y - s.sy) * dy)
                                                              / length2))
-            d = math.hypot(s.sx + dx * t - seam[0], s.sy + dy * t - seam[1])
-            if d < best[0]:
-                best = (d, i, t)
-        _, at, t = best
+            d = math.hypot(s.sx + dx * u - seam_x, s.sy + dy * u - seam_y)
+            if d < best_d:
+                best_d, at, t = d, i, u
         backwards = self._volume_along(run, at, t, -1)
         forwards = self._volume_along(run, at, t, 1)
         if backwards >= ej:
