@@ -62,6 +62,7 @@ REELS: Final = (EepromIndex.REEL0, EepromIndex.REEL1)
 class Position:
     #: Called with each queued move's per-axis distances once the position has taken
     #: them in (an observer outside the firmware, such as `simulate`; None: nobody).
+    #: The vector is reused for the line's next segment: an observer that keeps it copies it.
     on_move: Callable[[vec[float]], None] | None
     # per axis (X Y Z E D B): packed vectors compiled (robox.packed), lists otherwise
     destination: vec[float]
@@ -297,11 +298,12 @@ class Position:
                 self.extruded_mm[n] += booked
         left = segments
         motion = self.motion
+        step = vec[float]([0.0] * 6)  # each segment's distances (nothing keeps them)
         while left:
             for i in range(6):
                 dest[i] = f32(dest[i] + moves[i])
+                step[i] = 0.0
             left -= 1
-            step = vec[float]([0.0] * 6)
             # do_move, written out: one generator for the whole line, not one per segment
             if rapid:
                 queued = self._queue_move(FLT_MAX, FLT_MAX, step)
