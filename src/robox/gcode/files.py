@@ -55,19 +55,56 @@ CARD_LINE_END = b"\r"  # a job's lines as they go to the card (protocol.md)
 FILE_LINE_END = b"\n"  # and in a file a person keeps
 
 
+class Written:
+    """What `_write_job` wrote, as the printer will read it: its lines (each ended by a
+    CR), its longest line and its SHA-1."""
+
+    def __init__(self) -> None:
+        self.lines = 0
+        self.longest = 0
+        self.digest = hashlib.sha1()
+
+    def add(self, data: bytes, batch: list[bytes]) -> None:
+        """`data`, the lines of `batch` each with its end, as it goes to the file."""
+        self.digest.update(data)
+        ends = data.count(b"\r")
+        if not ends:
+            return  # (LF ends: a person's file, not the card's lines)
+        self.lines += ends
+        # each line is one of the card's unless a line holds a CR of its own
+        parts = batch if ends == len(batch) and data[-1:] == b"\r" else data.split(b"\r")
+        self.longest = max(self.longest, max(map(len, parts)))
+
+
 def _write_job(lines: Iterable[bytes], target: str | os.PathLike,
-               end: bytes = CARD_LINE_END) -> None:
+               end: bytes = CARD_LINE_END) -> Written:
     """Lines ended with `end` to a temporary file renamed into place once all are
     written."""
+    written = Written()
     with replacing(target) as temp, open(temp, "wb") as out:
-        batch = []
+        batch: list[bytes] = []
         for line in lines:
             batch.append(line)
             if len(batch) >= 4096:
-                out.write(end.join(batch) + end)
+                data = end.join(batch) + end
+                out.write(data)
+                written.add(data, batch)
                 batch.clear()
         if batch:
-            out.write(end.join(batch) + end)
+            data = end.join(batch) + end
+            out.write(data)
+            written.add(data, batch)
+    return written
+
+
+def _roboxise(source: str | os.PathLike, target: str | os.PathLike, options: Options,
+              end: bytes) -> tuple[Summary, Written]:
+    with _lines(source) as (lines, detected):
+        refuse_overwriting(target, source)
+        translated, summary = translate(lines, options, detected)
+        if end == FILE_LINE_END:  # a file a person keeps: marked a Robox job
+            translated = itertools.chain([ROBOXISED], translated)
+        return summary, _write_job(translated, target, end)
 
 
 def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
@@ -75,21 +112,19 @@ def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
     """Translate `source` into the Robox job `target`, its lines ended with `end` (LF
     for a person's file; send-job's copy for the card, CR). Streams; `target` appears
     only when the whole file translated."""
-    with _lines(source) as (lines, detected):
+    return _roboxise(source, target, options, end)[0]
+
+
+def _strip(source: str | os.PathLike, target: str | os.PathLike) -> Written:
+    with _lines(source) as (lines, _):
         refuse_overwriting(target, source)
-        translated, summary = translate(lines, options, detected)
-        if end == FILE_LINE_END:  # a file a person keeps: marked a Robox job
-            translated = itertools.chain([ROBOXISED], translated)
-        _write_job(translated, target, end)
-    return summary
+        return _write_job(_no_macros(source, map(code_part, lines)), target)
 
 
 def strip_file(source: str | os.PathLike, target: str | os.PathLike) -> None:
     """`source` as a job as it is: comments and blank lines dropped, CR line ends. A
     `Macro:NAME` line is refused: the printer does not expand macros, a host does."""
-    with _lines(source) as (lines, _):
-        refuse_overwriting(target, source)
-        _write_job(_no_macros(source, map(code_part, lines)), target)
+    _strip(source, target)
 
 
 def _no_macros(source: str | os.PathLike, codes: Iterable[bytes]) -> Iterator[bytes]:
@@ -146,23 +181,13 @@ def job_file(source: str | os.PathLike, options: Options | None) -> Iterator[Job
         target = Path(directory) / "job.gcode"
         summary = None
         if options is None:
-            strip_file(source, target)
+            written = _strip(source, target)
         else:
-            summary = roboxise_file(source, target, options, CARD_LINE_END)
-        digest, lines, longest, run = hashlib.sha1(), 0, 0, 0
-        with open(target, "rb") as handle:
-            for chunk in read_chunks(handle):
-                digest.update(chunk)
-                ends = chunk.count(b"\r")
-                lines += ends
-                if not ends:
-                    run += len(chunk)
-                    continue
-                parts = chunk.split(b"\r")
-                longest = max(longest, run + len(parts[0]), *map(len, parts[1:-1]))
-                run = len(parts[-1])
+            summary, written = _roboxise(source, target, options, CARD_LINE_END)
+        # (counted as it was written: the file is not read again)
+        lines, longest = written.lines, written.longest
         if not lines:
             raise ImageError(f"{source}: no G-code commands in the file")
-        long_line = _first_long_line(target) if max(longest, run) >= JOB_LINE_LIMIT else None
-        yield JobFile(target, target.stat().st_size, lines, digest.hexdigest(), summary,
+        long_line = _first_long_line(target) if longest >= JOB_LINE_LIMIT else None
+        yield JobFile(target, target.stat().st_size, lines, written.digest.hexdigest(), summary,
                       long_line, str(source))
