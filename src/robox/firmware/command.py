@@ -154,8 +154,11 @@ class Command:
             self.fw.clock.now - self.last_ack_report < HOST_CONNECTED_S
 
     def is_error(self) -> bool:
+        bits = self.errors.bits
+        if not bits:
+            return False  # (the job asks at every line: compiled, no 64-bit mask taken)
         mask = PAUSE_MASK_CONNECTED if self.host_connected() else PAUSE_MASK
-        return bool(self.errors.bits & mask)
+        return bool(bits & mask)
 
     # ---------------------------------------------------------- the loop
     def maintain(self) -> None:
