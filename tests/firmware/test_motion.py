@@ -428,6 +428,18 @@ def test_a_z_top_switch_closing_below_its_height_is_an_error(wire):
     assert b"Z+:1" in wire.gcode(b"M119\r")
 
 
+def test_a_block_that_reaches_m533s_height_does_not_watch_the_z_top_switch(wire):
+    """The same closed switch under blocks that each end above M533's height as it
+    stands now (lowered from the factory's 79 mm): not watched, no error. (G1 Z5 is
+    three segments, the first ending at 1.67 mm.)"""
+    run(wire, "G92 X0 Y0 Z0", "M533 Z1.5")
+    wire.printer.hw.machine.stuck["Z+"] = True
+    run(wire, "G1 Z5 F600")
+    assert wire.ack(b"\xb3")[ErrorBit.Z_TOP_SWITCH] == "0"
+    run(wire, "M533 Z5.5", "G1 Z0 F600", "G1 Z5 F600")  # below the height again: watched
+    assert wire.ack(b"\xb3")[ErrorBit.Z_TOP_SWITCH] == "1"
+
+
 def level_after_homes(wire, tilt_mm: float) -> None:
     m = wire.printer.hw.machine
     m.zb = round(tilt_mm * 6400)

@@ -92,6 +92,8 @@ class Parameters:
     #: M909's slip thresholds (mm), as native floats for the pass that watches the wheels
     slip_threshold_mm: float
     until_slip_threshold_mm: float
+    #: M533's Z (mm), as a native float for every queued move
+    z_top_switch_min: float
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
@@ -100,6 +102,7 @@ class Parameters:
         self.steps_per_unit = self.max_speed = self.travel = vec[float]([])
         self.invert_switch = []
         self.slip_threshold_mm = self.until_slip_threshold_mm = 0.0
+        self.z_top_switch_min = 0.0
 
     def initialise(self) -> None:
         self.defaults()
@@ -128,6 +131,7 @@ class Parameters:
         self.invert_switch = [int(values["invert_switch"][axis]) for axis in AXES]
         self.slip_threshold_mm = float(values["filament_slip_threshold"])
         self.until_slip_threshold_mm = float(values["filament_until_slip_threshold"])
+        self.z_top_switch_min = float(values["z_top_switch_min"])
 
     def _axis_floats(self, name: str) -> vec[float]:
         values = self.values[name]

@@ -174,9 +174,9 @@ class Position:
     def _queue_move(self, feed_rate: float, speed_limit: float, moves: vec[float]) -> bool:
         """do_move up to add_block_to_buffer's wait for room: `moves` gets the distances
         the steps make; whether a block was queued."""
-        pa = self.pa
+        parameters = self.fw.parameters
         pos, dest, off = self.position, self.destination, self.tool_offset
-        travel = self.fw.parameters.travel
+        travel = parameters.travel
         for i in range(X, Y + 1):  # (a range: compiled, a tuple's iterator is generic)
             if self.homing_done[i]:
                 target = cmax(0.0, cmin(travel[i], f32(dest[i] + off[i])))
@@ -186,8 +186,7 @@ class Position:
                           cmax(0.0, dest[Z]) + off[Z] + self.z_correction(moves[X], moves[Y],
                                                                           dest[Z]))
             moves[Z] = f32(target - pos[Z])
-        z_top_min: float = pa["z_top_switch_min"]
-        check_z_top = pos[Z] + cmax(moves[Z], 0.0) < z_top_min
+        check_z_top = pos[Z] + cmax(moves[Z], 0.0) < parameters.z_top_switch_min
         for i in range(E, D + 1):
             moves[i] = f32(dest[i] - pos[i])
         opening = f32(cmax(0.0, cmin(1.0, dest[B])))
