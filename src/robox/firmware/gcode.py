@@ -75,6 +75,28 @@ READY_WAIT: Final = Wait(motion="ready")
 EMPTY_WAIT: Final = Wait(motion="empty")
 
 
+class Resumable:
+    """A buffered line's routine that only ever waits for room in the motion queue, kept
+    as an object instead of a generator (a G0/G1: position.MoveRun). The job runs it as
+    `current` (see _line_step), resuming it with resume() once there is room; `waits()`
+    is the same routine as a generator, for a line run anywhere else. (Compiled, a
+    generator's frame is made, resumed through next() and cleared for every line, a
+    native object's method is called directly.)"""
+
+    def resume(self) -> bool:
+        """Run on until the routine must wait for room (False) or has ended (True)."""
+        raise NotImplementedError
+
+    def waits(self) -> Waits:
+        while not self.resume():
+            yield READY_WAIT
+
+
+def _as_waits(step: Waits | Resumable | None) -> Waits | None:
+    """A routine as a generator, to run inside another."""
+    return step.waits() if isinstance(step, Resumable) else step
+
+
 def wait_for(condition, wait: Wait = NEXT_PASS) -> Waits:
     while not condition():
         yield wait
@@ -129,7 +151,7 @@ class Job:
         self.parked = False
         self.running = False
         self.idle_since = now
-        self.current: Waits | None = None  # the job-level step under way
+        self.current: Waits | Resumable | None = None  # the job-level step under way
         self.waiting: Wait | None = None
         # a buffered line's own routine run as `current` (see _line_step): the bytes its
         # end takes off a buffer (0: none), and which (True: the job's)
@@ -247,7 +269,7 @@ class Job:
         if step is not None:
             self._start(step)
 
-    def _action(self, direct: bool = False) -> Waits | None:
+    def _action(self, direct: bool = False) -> Waits | Resumable | None:
         """The one thing maintain_job does this pass; a generator when it may wait.
         `direct`: a buffered line's own routine, to be run as `current` (_line_step)."""
         fw = self.fw
@@ -347,7 +369,7 @@ class Job:
                 yield from self._slip_handling(j)
                 return
         self._auto_pause(fw.clock.now)
-        step = self._action()
+        step = _as_waits(self._action())
         if step is not None:
             yield from step
 
@@ -386,16 +408,24 @@ class Job:
         self.jobs_completed += 1
         fw.events.append(("job finished", job_id))
 
-    def _start(self, step: Waits) -> None:
+    def _start(self, step: Waits | Resumable) -> None:
         self.current = step
+        if isinstance(step, Resumable):
+            self.waiting = READY_WAIT  # (it has run up to its wait: see _line_step)
+            return
         self._drive()
 
     def _drive(self) -> None:
         step = self.current
         assert step is not None
-        # (a default, not StopIteration caught: a line's routine yields only Waits, and
-        # compiled, an exception caught costs a traceback entry at every line's end)
-        waiting = _NEXT(step, None)
+        waiting: Wait | None
+        if isinstance(step, Resumable):
+            waiting = None if step.resume() else READY_WAIT
+        else:
+            # (a default, not StopIteration caught: a line's routine yields only Waits,
+            # and compiled, an exception caught costs a traceback entry at every line's
+            # end)
+            waiting = _NEXT(step, None)
         if waiting is None:
             self.current = None
             taking = self._taking
@@ -409,18 +439,20 @@ class Job:
         then taken off the buffer as it is by then."""
         # (a buffered line's response goes nowhere: its routine runs one generator down
         # from here, not inside process_line's, where most passes resume it)
-        step = self._code_step((self.job_buffer if job else self.execute_buffer)[:n])
+        step = _as_waits(self._code_step((self.job_buffer if job else self.execute_buffer)[:n]))
         if step is not None:
             yield from step
         self._line_done(job, n)
 
-    def _line_step(self, job: bool, n: i64) -> Waits | None:
+    def _line_step(self, job: bool, n: i64) -> Waits | Resumable | None:
         """What _buffer_line does, without a generator around the line's own: the line
         run at once, its routine (if it has one) returned to run as `current`, and the
         line taken off its buffer when that ends (_drive), in the same pass, as the
         generator's end would. (Compiled, every pass a line waits resumes it through
-        one generator fewer.)"""
-        step = self._code_step((self.job_buffer if job else self.execute_buffer)[:n])
+        one generator fewer.) A move is begun here, up to its first wait for room (a
+        generator would run that far when _start first drives it, in this same pass),
+        and comes back as a Resumable, or as None if it needed no wait."""
+        step = self._code_step((self.job_buffer if job else self.execute_buffer)[:n], True)
         if step is None:
             self._line_done(job, n)
             return None
@@ -451,19 +483,22 @@ class Job:
     def process_line(self, raw: bytes) -> Waits:
         """Run one line (a generator: it yields while it waits); returns its response
         text, which always ends in ok."""
-        step = self._code_step(raw)
+        step = _as_waits(self._code_step(raw))
         response = (yield from step) if step is not None else None
         return (response or b"") + b"ok\r\n"
 
-    def _code_step(self, raw: bytes) -> Waits | None:
+    def _code_step(self, raw: bytes, begun: bool = False) -> Waits | Resumable | None:
         """The line, counted as executed, and the routine that runs its code (G before M
         before T, each found anywhere in the line), returning an M-code's response
-        text; None for none."""
+        text; None for none. `begun`: a move is begun now (see _line_step); otherwise
+        it is a generator, as every other routine is."""
         line = Line(raw)
         self.lines_executed += 1
         if line.has("G"):
             code = line.int("G")
             if code == 0 or code == 1:  # nearly every line: the move itself, directly
+                if begun:
+                    return self.fw.position.begin_move(line, code == 0)
                 return self.fw.position.move(line, rapid=code == 0)
             return self._g(code, line)
         if line.has("M"):

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, Final
 
 from robox.firmware.carith import UINT_MAX, cfloor, cmax, cmin, div, f32, f32_accumulate, to_ulong
 from robox.firmware.cline import Line, report_float, strtof
-from robox.firmware.gcode import Waits
+from robox.firmware.gcode import Resumable, Waits
 from robox.firmware.motion import FLT_MAX, READY_WAIT
 from robox.formats.eeprom import EepromIndex
 from robox.formats.protocol import ErrorBit
@@ -255,7 +255,14 @@ class Position:
         return self.motion.steps_for(i, move)
 
     def move(self, line: Line, rapid: bool = False) -> Waits:
-        """G0/G1 (do_g0_g1)."""
+        """G0/G1 (do_g0_g1), as a generator."""
+        run = self.begin_move(line, rapid)
+        if run is not None:
+            yield from run.waits()
+
+    def begin_move(self, line: Line, rapid: bool) -> MoveRun | None:
+        """G0/G1 (do_g0_g1) up to its first wait for room in the motion queue: the rest
+        of it (None if it needed no wait)."""
         moves = vec[float]([0.0] * 6)
         has_xyz = has_edb = False
         distance = 0.0
@@ -288,44 +295,15 @@ class Position:
         # (unsigned long) of the quotient saturates, so one past it wraps to no segment
         segments = (1 + to_ulong(distance / SEGMENT_MM)) & UINT_MAX
         if segments == 0:
-            return
+            return None
         for i in range(6):
             moves[i] = f32(moves[i] / f32(segments))
         for n in range(2):
             booked = moves[E + n] * segments
             if booked - booked == 0.0:  # finite (math.isfinite() is a generic call compiled)
                 self.extruded_mm[n] += booked
-        left = segments
-        motion = self.motion
-        step = vec[float]([0.0] * 6)  # each segment's distances (nothing keeps them)
-        while left:
-            for i in range(6):
-                dest[i] = f32(dest[i] + moves[i])
-                step[i] = 0.0
-            left -= 1
-            # do_move, written out: one generator for the whole line, not one per segment
-            if rapid:
-                queued = self._queue_move(FLT_MAX, FLT_MAX, step)
-            elif has_xyz:
-                rate = self.feed_rate
-                if has_edb:
-                    rate = f32(rate * self.feed_multiplier[self.feed_multiplier_select])
-                queued = self._queue_move(rate, FLT_MAX, step)
-            else:
-                queued = self._queue_move(FLT_MAX, self.feed_rate, step)
-            if queued:
-                while not motion.ready_for_more():
-                    yield READY_WAIT
-            moved = self._book(step)
-            if not moved and left > 64:
-                # a move far past the travel or on axes not homed: the firmware spins
-                # through segments that queue nothing; only the destinations change
-                still = self._quiet_segments(moves, left)
-                if still:
-                    for i in range(6):
-                        if moves[i]:
-                            dest[i] = f32_accumulate(dest[i], moves[i], still)
-                    left -= still
+        run = MoveRun(self, moves, segments, rapid, has_xyz, has_edb)
+        return None if run.resume() else run
 
     def select_tool(self, tool: int, line: Line) -> Waits:
         """T0/T1 (do_tool_change): Z first when it goes up, last when it goes down; the
@@ -682,3 +660,65 @@ class Position:
         """Status byte 26 while filament is being loaded ('2', '4') or unloaded ('3', '5')."""
         return {LOADING_E: b"2", UNLOADING_E: b"3", LOADING_D: b"4",
                 UNLOADING_D: b"5"}.get(self.what)
+
+
+class MoveRun(Resumable):
+    """A G0/G1's segments, queued one by one (do_move, written out for each), each waiting
+    for room in the motion queue before the position takes it in."""
+
+    def __init__(self, position: Position, moves: vec[float], segments: int, rapid: bool,
+                 has_xyz: bool, has_edb: bool) -> None:
+        self.position = position
+        self.moves = moves  # each segment's share of the move, per axis
+        self.left: i64 = segments
+        self.rapid = rapid
+        self.has_xyz = has_xyz
+        self.has_edb = has_edb
+        self.step = vec[float]([0.0] * 6)  # each segment's distances (nothing keeps them)
+        self.queued = False  # a segment is queued, waiting for room before it is taken in
+
+    def resume(self) -> bool:
+        p = self.position
+        motion = p.motion
+        moves, step = self.moves, self.step
+        dest = p.destination
+        if self.queued:
+            if not motion.ready_for_more():
+                return False
+            self.queued = False
+            self._taken_in()
+        while self.left:
+            for i in range(6):
+                dest[i] = f32(dest[i] + moves[i])
+                step[i] = 0.0
+            self.left -= 1
+            if self.rapid:
+                queued = p._queue_move(FLT_MAX, FLT_MAX, step)
+            elif self.has_xyz:
+                rate = p.feed_rate
+                if self.has_edb:
+                    rate = f32(rate * p.feed_multiplier[p.feed_multiplier_select])
+                queued = p._queue_move(rate, FLT_MAX, step)
+            else:
+                queued = p._queue_move(FLT_MAX, p.feed_rate, step)
+            if queued and not motion.ready_for_more():
+                self.queued = True
+                return False
+            self._taken_in()
+        return True
+
+    def _taken_in(self) -> None:
+        """After a segment's wait: the position takes it in."""
+        p = self.position
+        moved = p._book(self.step)
+        if not moved and self.left > 64:
+            # a move far past the travel or on axes not homed: the firmware spins
+            # through segments that queue nothing; only the destinations change
+            moves = self.moves
+            still = p._quiet_segments(moves, self.left)
+            if still:
+                dest = p.destination
+                for i in range(6):
+                    if moves[i]:
+                        dest[i] = f32_accumulate(dest[i], moves[i], still)
+                self.left -= still
