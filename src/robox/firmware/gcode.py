@@ -271,7 +271,8 @@ class Job:
 
     def _action(self, direct: bool = False) -> Waits | Resumable | None:
         """The one thing maintain_job does this pass; a generator when it may wait.
-        `direct`: a buffered line's own routine, to be run as `current` (_line_step)."""
+        `direct`: a buffered line's own routine, to be run as `current` (_line_step; a
+        move's is a Resumable)."""
         fw = self.fw
         if self.abort_flag:
             if fw.motion.empty():
