@@ -11,6 +11,7 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 from robox.errors import ImageError, UsageError
 from robox.fileio import open_input, read_chunks, refuse_overwriting, replacing
@@ -64,8 +65,10 @@ class Written:
         self.longest = 0
         self.digest = hashlib.sha1()
 
-    def add(self, data: bytes, batch: list[bytes]) -> None:
-        """`data`, the lines of `batch` each with its end, as it goes to the file."""
+    def write(self, out: BinaryIO, batch: list[bytes], end: bytes) -> None:
+        """The lines of `batch`, each ended with `end`, to `out`, and counted."""
+        data = end.join(batch) + end
+        out.write(data)
         self.digest.update(data)
         ends = data.count(b"\r")
         if not ends:
@@ -86,14 +89,10 @@ def _write_job(lines: Iterable[bytes], target: str | os.PathLike,
         for line in lines:
             batch.append(line)
             if len(batch) >= 4096:
-                data = end.join(batch) + end
-                out.write(data)
-                written.add(data, batch)
+                written.write(out, batch, end)
                 batch.clear()
         if batch:
-            data = end.join(batch) + end
-            out.write(data)
-            written.add(data, batch)
+            written.write(out, batch, end)
     return written
 
 
