@@ -35,7 +35,7 @@ import time
 from setuptools import build_meta as _setuptools
 from setuptools.build_meta import *  # noqa: F403  (the standard hooks, unchanged)
 from setuptools.command.build_ext import build_ext
-from setuptools.errors import CompileError
+from setuptools.errors import CompileError, LinkError
 
 MYPYC = "mypy[mypyc]>=2.4"  # librt.vecs (src/robox/packed.py)
 CHOICE = "ROBOX_NATIVE"
@@ -97,12 +97,31 @@ def stage(text: str, tick_s: float = 30.0):
             tty.close()
 
 
-# The compiled core is one large C file whose functions call each other at every step.
-# By default a shared library's functions may be replaced by another library's of the
-# same name at load time, so the compiler neither inlines one into another nor calls it
-# directly: these let it (Python finds a module by its exported PyInit_ function alone,
-# which Python's headers keep visible). They change no arithmetic: no FMA, no fast math.
+# The compiled core is one shared library of every module's C (one file per module, so
+# that they compile side by side on the machine's cores). By default a shared library's
+# functions may be replaced by another library's of the same name at load time, so the
+# compiler neither inlines one into another nor calls it directly: these let it (Python
+# finds a module by its exported PyInit_ function alone, which Python's headers keep
+# visible). They change no arithmetic: no FMA, no fast math.
 SPEED_FLAGS = ["-fno-semantic-interposition", "-fvisibility=hidden", "-fno-plt"]
+
+# Where the compiler is GCC, the core is optimised as one program at link time (LTO:
+# the modules' functions call each other at every step, and inlining across their files
+# is what one file would give) and from a profile: it is compiled first with counters,
+# run on a training job (robox_train.py), then compiled again knowing which branches
+# and calls are hot. Neither changes what the code computes (the same C, the same
+# floating-point rules); they only choose how it is laid out and inlined.
+LTO_COMPILE = ["-flto"]
+PROFILE_GENERATE = ["-fprofile-generate", "-fprofile-update=single"]
+PROFILE_GENERATE_LINK = ["-fprofile-generate"]
+PROFILE_USE = ["-fprofile-use", "-fprofile-partial-training", "-Wno-missing-profile"]
+PROFILE_USE_LINK = ["-fprofile-use", "-fprofile-partial-training"]
+# what the training run imports besides the package and mypyc's runtime (the commands
+# it runs are robox-cli's: click; the upload goes through pyusb's API; crcmod checks)
+TRAINING = ["click>=8.1", "pyusb>=1.2", "crcmod>=1.7"]
+TRAINER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "robox_train.py")
+TRAINING_TIMEOUT_S = 900
+NATIVE_BUILD = "native_build.json"  # in the package: how its core was optimised
 
 # Compiled functions whose whole work is what one C expression does and mypyc cannot
 # write: the build gives them that expression as their body, in a copy of the C mypyc
@@ -132,14 +151,9 @@ def replace_bodies(text: str, bodies: dict[str, str]) -> tuple[str, list[str]]:
 
 
 class BuildExt(build_ext):
-    """setup.py's build_ext: its stage on the terminal, and SPEED_FLAGS where the
-    compiler takes them."""
-
-    def run(self):
-        if not self.extensions:
-            return super().run()
-        with stage("compiled core 2/2: compiling the C (the long part)"):
-            return super().run()
+    """setup.py's build_ext: its stages on the terminal, the core's files compiled side by
+    side, SPEED_FLAGS where the compiler takes them, and with GCC the core optimised at
+    link time and from a training run's profile (LTO_COMPILE, PROFILE_GENERATE)."""
 
     def build_extensions(self):
         flags = [flag for flag in SPEED_FLAGS if self._takes(flag)]
@@ -150,7 +164,128 @@ class BuildExt(build_ext):
         for signature in sorted(missing):
             _say(f"kept mypyc's own body for {signature.split('(')[0].split()[-1]} (its "
                  "definition was not found as expected in the C mypyc wrote)")
-        super().build_extensions()
+        _compile_side_by_side(self.compiler, _cores())
+        # the library holding every module's C (the others are each module's small shim)
+        core = max(self.extensions, key=lambda ext: len(ext.sources))
+        compile_args, link_args = list(core.extra_compile_args), list(core.extra_link_args)
+        lto, gcc = self._whole_program()
+        # (GCC spreads the link-time work over the cores; the optimisation level is
+        # given again at the link, where the functions are finally compiled)
+        link_lto = [f"-flto={_cores()}" if gcc else "-flto",
+                    *[arg for arg in compile_args if arg.startswith("-O")]]
+
+        def build(compile_extra: list[str], link_extra: list[str], what: str,
+                  only_core: bool = False) -> None:
+            core.extra_compile_args = [*compile_args, *compile_extra]
+            core.extra_link_args = [*link_args, *link_extra]
+            everything = self.extensions
+            if only_core:  # (the shims are built already)
+                self.extensions, self.force = [core], True
+            try:
+                with stage(f"compiled core: {what}"):
+                    super(BuildExt, self).build_extensions()
+            finally:
+                self.extensions = everything
+
+        if lto and gcc:
+            # (counted afresh, from a core built afresh: one an earlier build left here
+            # may be up to date, but it has no counters)
+            self._forget_counts()
+            self.force = True
+            try:
+                build([*LTO_COMPILE, *PROFILE_GENERATE], [*link_lto, *PROFILE_GENERATE_LINK],
+                      "compiling the C with counters")
+            except (CompileError, LinkError) as error:
+                _say(f"the core did not compile with counters ({_reason(error)}); it is "
+                     "compiled without a training run")
+            else:
+                with stage("compiled core: the training run"):
+                    failed = self._train()
+                if failed:
+                    _say(f"the training run failed ({failed}); the core is compiled "
+                         "without its profile")
+                else:
+                    try:
+                        build([*LTO_COMPILE, *PROFILE_USE], [*link_lto, *PROFILE_USE_LINK],
+                              "compiling the C with the training run's counts",
+                              only_core=True)
+                        return self._record(link_time=True, profile=True)
+                    except (CompileError, LinkError) as error:
+                        _say(f"the core did not compile with the training run's counts "
+                             f"({_reason(error)}); it is compiled without them")
+                build(LTO_COMPILE, link_lto, "compiling the C, optimised at link time",
+                      only_core=True)
+                return self._record(link_time=True, profile=False)
+        if lto:
+            try:
+                build(LTO_COMPILE, link_lto, "compiling the C, optimised at link time")
+                return self._record(link_time=True, profile=False)
+            except (CompileError, LinkError) as error:
+                _say(f"the core did not compile optimised at link time ({_reason(error)}); "
+                     "it is compiled file by file")
+        build([], [], "compiling the C (the long part)")
+        return self._record(link_time=False, profile=False)
+
+    def _record(self, link_time: bool, profile: bool) -> None:
+        """How the core was optimised, in the package (robox.native.describe() says it)."""
+        import json
+
+        folder = os.path.join(self.build_lib, "robox")
+        os.makedirs(folder, exist_ok=True)
+        with open(os.path.join(folder, NATIVE_BUILD), "w", encoding="utf-8") as f:
+            json.dump({"link_time": link_time, "profile": profile}, f)
+            f.write("\n")
+
+    def _whole_program(self) -> tuple[bool, bool]:
+        """Whether the compiler optimises a shared library at link time (LTO_COMPILE),
+        and whether it is GCC with its profile counters (PROFILE_GENERATE)."""
+        if self.compiler.compiler_type != "unix":
+            return False, False
+        if not self._links("", LTO_COMPILE, ["-flto"]):
+            return False, False
+        gcc = "#if defined(__clang__) || !defined(__GNUC__)\n#error not GCC\n#endif\n"
+        return True, self._links(gcc, [*LTO_COMPILE, *PROFILE_GENERATE],
+                                 ["-flto", *PROFILE_GENERATE_LINK])
+
+    def _links(self, source: str, compile_args: list[str], link_args: list[str]) -> bool:
+        """Whether a small shared library with this source compiles and links with these
+        flags (warnings are errors)."""
+        with tempfile.TemporaryDirectory() as scratch:
+            probe = os.path.join(scratch, "probe.c")
+            with open(probe, "w") as f:
+                f.write(source + "int probe(int x) { return x + 1; }\n")
+            try:
+                objects = self.compiler.compile([probe], output_dir=scratch,
+                                                extra_postargs=[*compile_args, "-Werror"])
+                self.compiler.link_shared_object(objects, os.path.join(scratch, "probe.so"),
+                                                 extra_postargs=link_args)
+            except (CompileError, LinkError):
+                return False
+        return True
+
+    def _forget_counts(self) -> None:
+        """Counts an earlier build left beside its objects (the counters add to them)."""
+        for folder, _, names in os.walk(self.build_temp):
+            for name in names:
+                if name.endswith(".gcda"):
+                    os.remove(os.path.join(folder, name))
+
+    def _train(self) -> str | None:
+        """The training run on the instrumented core (robox_train.py); what went wrong,
+        or None."""
+        import subprocess
+
+        with tempfile.TemporaryDirectory() as work:
+            try:
+                done = subprocess.run([sys.executable, TRAINER, self.build_lib, work],
+                                      stdin=subprocess.DEVNULL, capture_output=True,
+                                      text=True, timeout=TRAINING_TIMEOUT_S)
+            except (OSError, subprocess.TimeoutExpired) as error:
+                return _reason(error)
+        if done.returncode == 0:
+            return None
+        lines = (done.stderr or done.stdout).strip().splitlines()
+        return _reason(RuntimeError(lines[-1] if lines else f"exit status {done.returncode}"))
 
     @staticmethod
     def _with_bodies(source: str, missing: set[str]) -> str:
@@ -192,6 +327,41 @@ class BuildExt(build_ext):
         return True
 
 
+def _cores() -> int:
+    """The processors this build may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _compile_side_by_side(compiler, jobs: int) -> None:
+    """Make `compiler` compile an extension's C files `jobs` at a time (the standard one
+    compiles them one after another; each is a compiler process of its own, so threads
+    only wait for them). Where its internals are not the standard ones, it is left as
+    it is."""
+    setup = getattr(compiler, "_setup_compile", None)
+    cc_args = getattr(compiler, "_get_cc_args", None)
+    one = getattr(compiler, "_compile", None)
+    if jobs < 2 or setup is None or cc_args is None or one is None:
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    def compile(sources, output_dir=None, macros=None, include_dirs=None, debug=False,
+                extra_preargs=None, extra_postargs=None, depends=None):
+        macros, objects, extra_postargs, pp_opts, build = setup(
+            output_dir, macros, include_dirs, sources, depends, extra_postargs)
+        args = cc_args(pp_opts, debug, extra_preargs)
+        todo = [(obj, *build[obj]) for obj in objects if obj in build]
+        with ThreadPoolExecutor(jobs) as pool:
+            for done in [pool.submit(one, obj, src, ext, args, extra_postargs, pp_opts)
+                         for obj, src, ext in todo]:
+                done.result()  # (the first failure is raised)
+        return objects
+
+    compiler.compile = compile
+
+
 def compiler() -> str | None:
     """The C compiler a build would run (CC, as setuptools takes it), if it exists."""
     command = os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc"
@@ -218,7 +388,7 @@ def get_requires_for_build_wheel(config_settings=None):
         needed = list(_setuptools.get_requires_for_build_wheel(config_settings))
     choice = _choice()
     if choice == "1" or (choice == "auto" and compiler() is not None):
-        needed.append(MYPYC)
+        needed += [MYPYC, *TRAINING]
     return needed
 
 

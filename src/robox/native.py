@@ -53,9 +53,32 @@ def compiled_modules() -> list[str]:
     return out
 
 
+def optimisation(path: str | None = None) -> str | None:
+    """How the build optimised the compiled core beyond mypyc's C, as it recorded it in
+    the package (buildsys/robox_build.py; `path`: another record): at link time, from a
+    training run's profile, or neither; None where it recorded nothing (a pure build)."""
+    import json
+    from pathlib import Path
+
+    path = path or str(Path(__file__).with_name("native_build.json"))
+    try:
+        built = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(built, dict):
+        return None
+    done = [name for key, name in (("link_time", "at link time"),
+                                   ("profile", "from a training run's profile"))
+            if built.get(key) is True]
+    return "optimised " + " and ".join(done) if done else "compiled file by file"
+
+
 def describe() -> str:
     n = len(compiled_modules())
-    return "pure Python" if n == 0 else f"compiled core ({n} of {len(MODULES)} modules)"
+    if n == 0:
+        return "pure Python"
+    how = optimisation()
+    return f"compiled core ({n} of {len(MODULES)} modules{', ' + how if how else ''})"
 
 
 def build() -> str:

@@ -267,12 +267,13 @@ def test_files_gives_what_this_computer_uploaded_and_marks_the_newest_copy(tmp_p
 def test_version_names_the_firmware_models_build():
     """--version says whether the model runs compiled (robox.native), so a user can see
     what a plain `pip install .` gave them; the test suite's editable install is pure."""
-    from robox.native import MODULES, compiled_modules
+    from robox.native import MODULES, compiled_modules, optimisation
 
     result = run("--version")
     assert result.exit_code == 0
     n = len(compiled_modules())
-    kind = "pure Python" if n == 0 else f"compiled core ({n} of {len(MODULES)} modules)"
+    how = f", {optimisation()}" if optimisation() else ""
+    kind = "pure Python" if n == 0 else f"compiled core ({n} of {len(MODULES)} modules{how})"
     assert result.output == f"robox-cli, version 0.1.0; firmware model: {kind}\n"
 
 

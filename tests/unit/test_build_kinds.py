@@ -4,8 +4,9 @@ says why its package is pure; `ROBOX_NATIVE=1` makes the compiled core a require
 and `ROBOX_NATIVE=0` turns it off.
 
 Each test builds a wheel from a copy of the sources, as `pip install .` would, with the
-compiler (CC) missing or failing; the compiled build itself is tested in
-test_compiled_build.py.
+compiler (CC) missing or failing; the compiled install itself is tested in
+test_pure_build.py (every hot module compiled; with GCC, the core compiled from its
+training run's profile, and the training run itself).
 """
 
 from __future__ import annotations

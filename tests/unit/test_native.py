@@ -65,14 +65,16 @@ def test_the_build_backend_asks_for_mypyc_unless_it_cannot_or_must_not(monkeypat
     cc.chmod(0o755)
     monkeypatch.setenv("CC", f"{cc} -pthread")  # a command line: its first word is run
     monkeypatch.delenv("ROBOX_NATIVE", raising=False)
-    assert backend.get_requires_for_build_wheel() == ["wheel", backend.MYPYC]
+    assert backend.get_requires_for_build_wheel() == ["wheel", backend.MYPYC,
+                                                     *backend.TRAINING]
     monkeypatch.setenv("ROBOX_NATIVE", "0")
     assert backend.get_requires_for_build_wheel() == ["wheel"]
     monkeypatch.setenv("CC", str(tmp_path / "missing"))
     monkeypatch.setenv("ROBOX_NATIVE", "auto")
     assert backend.get_requires_for_build_wheel() == ["wheel"]  # no compiler: pure
     monkeypatch.setenv("ROBOX_NATIVE", "1")
-    assert backend.get_requires_for_build_wheel() == ["wheel", backend.MYPYC]  # required
+    assert backend.get_requires_for_build_wheel() == ["wheel", backend.MYPYC,
+                                                     *backend.TRAINING]  # required
     # setup.py is run without mypyc while the requirements are listed, and that leaves
     # nothing behind in the environment
     assert seen == ["pure"] * 4 and backend.BUILD not in os.environ
@@ -299,3 +301,20 @@ def test_the_build_gives_f32_cs_own_conversion_and_it_rounds_as_struct(tmp_path,
 
     cases = _float_cases()
     assert [key(f32(v)) for v in cases] == [key(struct_f32(v)) for v in cases]
+
+
+@pytest.mark.parametrize(("record", "said"), [
+    ('{"link_time": true, "profile": true}',
+     "optimised at link time and from a training run's profile"),
+    ('{"link_time": true, "profile": false}', "optimised at link time"),
+    ('{"link_time": false, "profile": false}', "compiled file by file"),
+    ('{"link_time": 1, "profile": "yes"}', "compiled file by file"),  # only true is true
+    ('["link_time"]', None),
+    ("{not json", None),
+    (None, None),  # no record: a pure build's package
+])
+def test_the_build_record_says_how_the_core_was_optimised(tmp_path, record, said):
+    path = tmp_path / "native_build.json"
+    if record is not None:
+        path.write_text(record)
+    assert native.optimisation(str(path)) == said

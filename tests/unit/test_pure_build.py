@@ -74,6 +74,56 @@ def test_an_install_where_a_compiler_is_has_every_hot_module_compiled():
     assert compiled_modules() == list(MODULES)
 
 
+def _gcc() -> bool:
+    """Whether the build's compiler is GCC (which the build optimises at link time and
+    from a training run: buildsys/robox_build.py)."""
+    cc = _compiler()
+    if cc is None:
+        return False
+    run = subprocess.run([cc, "-dM", "-E", "-"], input="", capture_output=True, text=True)
+    return run.returncode == 0 and "__GNUC__" in run.stdout and "__clang__" not in run.stdout
+
+
+@pytest.mark.skipif(not _gcc() or _editable() or os.environ.get("ROBOX_NATIVE") == "0",
+                    reason="the training run is GCC's, in a wheel build")
+def test_a_gcc_install_runs_the_core_compiled_from_its_training_runs_profile():
+    """The core a user runs is the one compiled again with the counts, never the one
+    with the counters in it (slower, and it would write its counts at every exit)."""
+    from robox.native import optimisation
+
+    assert optimisation() == "optimised at link time and from a training run's profile"
+    cores = [m for name, m in sys.modules.items() if name.endswith("__mypyc")]
+    assert cores, "no compiled core library is loaded"
+    for core in cores:
+        assert b"__gcov_" not in Path(core.__file__).read_bytes(), core.__file__
+
+
+def test_the_training_run_passes_on_the_installed_package(tmp_path):
+    """buildsys/robox_train.py, which a GCC build runs on its instrumented core, on the
+    package installed here: its commands succeed, and its job prints cleanly through
+    the valve stage (a job the translator refused or the printer stopped on would train
+    the build on the wrong paths)."""
+    package = Path(robox.__file__).resolve().parent.parent
+    work = tmp_path / "work"
+    work.mkdir()
+    run = subprocess.run([sys.executable, str(ROOT / "buildsys" / "robox_train.py"),
+                          str(package), str(work)], capture_output=True, text=True,
+                         timeout=600)
+    assert run.returncode == 0, run.stderr[-2000:]
+    job = work / "train.gcode"
+    assert 15_000 < len(job.read_bytes().splitlines()) < 40_000
+    report = subprocess.run([sys.executable, "-m", "robox.cli", "simulate", str(job),
+                             "--json"], capture_output=True, text=True, timeout=600,
+                            cwd=tmp_path)
+    assert report.returncode == 0, report.stderr[-2000:]
+    printed = json.loads(report.stdout)
+    assert printed["translation"]["slicer"] == "PrusaSlicer"
+    assert printed["translation"]["valve_cycles"] > 50
+    assert printed["completed"] and printed["lines_run"] == printed["lines"]
+    assert printed["errors"] == [] and printed["warnings"] == []
+    assert printed["deposition"]["blobs"] == 0
+
+
 def test_the_pure_python_fallback_passes_the_firmware_models_tests(tmp_path):
     """What a machine without a C compiler installs: the same sources, run as Python.
     Built from a copy of this tree with whatever build/ an earlier compiled install left
