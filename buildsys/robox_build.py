@@ -10,9 +10,10 @@ tells which one runs. `ROBOX_NATIVE` in the environment chooses:
 - `1`: compiled or nothing (a failure to compile fails the build);
 - `0`: pure Python.
 
-A compiled build takes minutes (about 3 of CPU on a current x86-64 core). pip's `-q`
-hides what a backend prints, so its stages and a line every 30 s go to the terminal
-(/dev/tty) where there is one, else to stderr (`pip install -v` shows them).
+A compiled build takes minutes (about 3 on a two-core x86-64 machine, 5 of CPU; with GCC
+it compiles the core twice around a training run, see BuildExt). pip's `-q` hides what
+a backend prints, so its stages and a line every 30 s go to the terminal (/dev/tty)
+where there is one, else to stderr (`pip install -v` shows them).
 
 An editable install (`pip install -e .`) is always pure Python: compiled modules would
 shadow later edits of the sources. Each kind of build keeps its own build directory
