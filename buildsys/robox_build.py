@@ -181,18 +181,18 @@ class BuildExt(build_ext):
             core.extra_link_args = [*link_args, *link_extra]
             everything = self.extensions
             if only_core:  # (the shims are built already)
-                self.extensions, self.force = [core], True
+                self.extensions = [core]
             try:
                 with stage(f"compiled core: {what}"):
                     super(BuildExt, self).build_extensions()
             finally:
                 self.extensions = everything
 
+        # Each compile below builds and links afresh: a library an earlier build (or step)
+        # left may look up to date by its files' times, and be the wrong kind.
+        self.force = self.compiler.force = True
         if lto and gcc:
-            # (counted afresh, from a core built afresh: one an earlier build left here
-            # may be up to date, but it has no counters)
-            self._forget_counts()
-            self.force = True
+            self._forget_counts()  # (the counters add to what they find)
             try:
                 build([*LTO_COMPILE, *PROFILE_GENERATE], [*link_lto, *PROFILE_GENERATE_LINK],
                       "compiling the C with counters")
