@@ -104,3 +104,23 @@ def test_an_unknown_choice_is_refused_by_name(tmp_path):
     assert run.returncode != 0
     assert wheels == []
     assert "robox: ROBOX_NATIVE must be 1, 0 or auto, not 'yes'" in run.stdout + run.stderr
+
+
+def test_the_sdist_carries_the_build_backend_and_its_training_run(tmp_path):
+    """A wheel built from the sdist (`python -m build`) runs the same backend: it and the
+    training run it starts travel in the sdist (MANIFEST.in)."""
+    import tarfile
+
+    src, out = tmp_path / "src", tmp_path / "out"
+    src.mkdir()
+    out.mkdir()
+    copy_project(SOURCES, src, "__pycache__", "*.so", "*.pyd", "build", "*.egg-info")
+    run = subprocess.run([sys.executable, "-c", "import sys; sys.path.insert(0, 'buildsys');"
+                          " import robox_build; print(robox_build.build_sdist(sys.argv[1]))",
+                          str(out)], cwd=src, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    (sdist,) = out.glob("robox-*.tar.gz")
+    with tarfile.open(sdist) as tar:
+        names = {name.split("/", 1)[1] for name in tar.getnames() if "/" in name}
+    assert {"buildsys/robox_build.py", "buildsys/robox_train.py", "setup.py",
+            "pyproject.toml"} <= names

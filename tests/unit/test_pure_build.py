@@ -27,7 +27,7 @@ import robox
 from robox.native import MODULES, compiled_modules
 
 ROOT = Path(__file__).resolve().parents[2]
-SOURCES = ("src", "buildsys", "setup.py", "pyproject.toml", "README.md")
+SOURCES = ("src", "buildsys", "setup.py", "pyproject.toml", "README.md", "MANIFEST.in")
 SUITES = ("tests/firmware", "tests/sim", "tests/gcode", "tests/faults/test_print_eeprom_unplug.py",
           "tests/unit/test_native.py")
 
