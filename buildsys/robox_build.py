@@ -248,9 +248,10 @@ class BuildExt(build_ext):
         return True, self._links(gcc, [*LTO_COMPILE, *PROFILE_GENERATE],
                                  ["-flto", *PROFILE_GENERATE_LINK])
 
-    def _links(self, source: str, compile_args: list[str], link_args: list[str]) -> bool:
-        """Whether a small shared library with this source compiles and links with these
-        flags (warnings are errors)."""
+    def _links(self, source: str, compile_args: list[str],
+               link_args: list[str] | None) -> bool:
+        """Whether a small C file with this source compiles with these flags without a
+        warning, and (`link_args` not None) links into a shared library with those."""
         with tempfile.TemporaryDirectory() as scratch:
             probe = os.path.join(scratch, "probe.c")
             with open(probe, "w") as f:
@@ -258,8 +259,9 @@ class BuildExt(build_ext):
             try:
                 objects = self.compiler.compile([probe], output_dir=scratch,
                                                 extra_postargs=[*compile_args, "-Werror"])
-                self.compiler.link_shared_object(objects, os.path.join(scratch, "probe.so"),
-                                                 extra_postargs=link_args)
+                if link_args is not None:
+                    self.compiler.link_shared_object(
+                        objects, os.path.join(scratch, "probe.so"), extra_postargs=link_args)
             except (CompileError, LinkError):
                 return False
         return True
@@ -314,18 +316,7 @@ class BuildExt(build_ext):
 
     def _takes(self, flag: str) -> bool:
         """Whether this build's compiler accepts `flag` without a warning."""
-        if self.compiler.compiler_type != "unix":
-            return False
-        with tempfile.TemporaryDirectory() as scratch:
-            probe = os.path.join(scratch, "probe.c")
-            with open(probe, "w") as f:
-                f.write("int probe(void) { return 0; }\n")
-            try:
-                self.compiler.compile([probe], output_dir=scratch,
-                                      extra_postargs=[flag, "-Werror"])
-            except CompileError:
-                return False
-        return True
+        return self.compiler.compiler_type == "unix" and self._links("", [flag], None)
 
 
 def _cores() -> int:
