@@ -32,5 +32,7 @@ def pytest_collection_modifyitems(items):
 @pytest.fixture(autouse=True)
 def _own_state_home(tmp_path_factory, monkeypatch):
     """What the host records of printers' cards (robox.host.catalogue) stays in the test's
-    own directory, never the user's."""
+    own directory, never the user's; so do the notes of the printers it serves (a test
+    running beside it that lists printers would find them)."""
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("state-home")))
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path_factory.mktemp("runtime")))
