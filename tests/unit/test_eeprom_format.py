@@ -79,6 +79,20 @@ def test_float8_parses_like_strtof(raw, value):
     assert float8.parse(bytearray(raw)) == value  # a buffer's field read in place
 
 
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.sampled_from([b"1.750000", b" 1.5e2xy", b"abc\0\0\0\0\0", b"-.5     ",
+                                 b"\0" * 8, b"12345678", b"+7      ", b"inf     ",
+                                 b"210.0000", b"-0.00000", b"nan     ", b"1.0e400 "]),
+                max_size=8), st.integers(0, 9))
+def test_a_run_of_fields_reads_as_each_field_alone(fields, start):
+    """parse_fields (a status report's runs of figures) reads each field of a run as
+    parse() reads it alone, wherever the run starts."""
+    raw = b"#" * start + b"".join(fields) + b"tail"
+    got = float8.parse_fields(raw, start, len(fields))
+    want = [float8.parse(field) for field in fields]
+    assert [struct.pack("<d", v) for v in got] == [struct.pack("<d", v) for v in want]
+
+
 _LIBC = ctypes.util.find_library("c")
 
 

@@ -64,6 +64,17 @@ def parse(raw: bytes | bytearray) -> float:
     return to_float32(float(match.group(1)))
 
 
+def parse_fields(raw: bytes, start: i64, count: i64) -> list[float]:
+    """`count` fields of WIDTH bytes one after another from `start`, each read as parse()
+    reads it (a status report's figures: compiled, one call for a run of them)."""
+    out: list[float] = []
+    k: i64
+    for k in range(count):
+        at: i64 = start + WIDTH * k
+        out.append(parse(raw[at : at + WIDTH]))
+    return out
+
+
 def shortest(value: float) -> float:
     """A float32 `value` as a person wrote it: the number with the fewest significant
     digits that reads back (as strtof reads it) as the same float32. 2.85 stored reads

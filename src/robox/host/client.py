@@ -144,24 +144,23 @@ class Status:
     def parse(cls, report: bytes) -> Status:
         if report[:1] != b"\xe1" or len(report) != 222:
             raise ProtocolError("malformed status report")
+        report = bytes(report)  # (the bytes as they are, where it is bytes already)
         job = report[1:17].split(b"\0", 1)[0]
+        fields = float8.parse_fields  # (compiled: one call for each run of figures)
         temperatures = {}
         for name, start in (("nozzle0", 40), ("nozzle1", 65), ("bed", 90), ("ambient", 115)):
-            temperatures[name] = {
-                "mode": chr(report[start]),
-                "measured": float8.parse(report[start + 1 : start + 9]),
-                "target": float8.parse(report[start + 9 : start + 17]),
-            }
-            if name != "ambient":
-                temperatures[name]["first_layer_target"] = float8.parse(
-                    report[start + 17 : start + 25])
+            ambient = name == "ambient"
+            values = fields(report, start + 1, 2 if ambient else 3)
+            temperatures[name] = {"mode": chr(report[start]), "measured": values[0],
+                                  "target": values[1]}
+            if not ambient:
+                temperatures[name]["first_layer_target"] = values[2]
         states = {"0": "not present", "1": "present, not valid", "2": "valid"}
         eeproms = {name: states.get(chr(report[134 + i]), "?")
                    for i, name in enumerate(("head", "reel0", "reel1"))}
         eeproms["dual_reel_adaptor"] = report[137:138] == b"1"
-        position = {axis: float8.parse(report[139 + 8 * i : 147 + 8 * i])
-                    for i, axis in enumerate("XYZB")}
-        values = [float8.parse(report[172 + 8 * i : 180 + 8 * i]) for i in range(6)]
+        position = dict(zip("XYZB", fields(report, 139, 4), strict=True))
+        values = fields(report, 172, 6)
         filament = {"E": {"diameter": values[0], "multiplier": values[1],
                           "feed_rate_multiplier": values[5]},
                     "D": {"diameter": values[2], "multiplier": values[3],
@@ -170,7 +169,7 @@ class Status:
                    PAUSE_STATES.get(chr(report[25]), "?"), report[26:27] != b"0",
                    temperatures, eeproms, report[138:139] == b"1", position,
                    int(chr(report[171])) if chr(report[171]).isdigit() else 0, filament,
-                   report[220:221] == b"1", bytes(report))
+                   report[220:221] == b"1", report)
 
 
 def log_exchange(frame: bytes, reply: bytes) -> None:
