@@ -113,14 +113,17 @@ class FileStorage:
         self.size = os.fstat(self._file.fileno()).st_size
 
     def read(self, offset: int, length: int) -> bytes:
-        self._file.seek(offset)
-        return self._file.read(length)
+        # (one pread, not a seek and a read: the card's model reads a block at a time)
+        return os.pread(self._file.fileno(), length, offset)
 
     def write(self, offset: int, data: bytes) -> None:
         if not self.writable:
             raise PermissionError(f"{self.path} is open read-only")
-        self._file.seek(offset)
-        self._file.write(data)
+        fd = self._file.fileno()
+        view = memoryview(data)
+        while view:  # (a write may take less than all it is given)
+            done = os.pwrite(fd, view, offset)
+            view, offset = view[done:], offset + done
 
     def flush(self) -> None:
         if self.writable:
