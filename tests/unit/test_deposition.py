@@ -305,3 +305,46 @@ def test_the_open_nozzle_kept_for_each_feed_follows_the_needles(head, runs):
             nozzles = [k for k in range(len(dep.opening))
                        if dep.feed_axis[k] == feed and dep.opening[k] > 0.0]
             assert dep._open_nozzle(feed) == (nozzles[0] if nozzles else -1)
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.floats(-1000.0, 1000.0), st.floats(-0.02, 0.02))
+def test_heights_in_a_rounded_height_s_band_round_as_it_does(z, dz):
+    """_round2_band: every height whose product with 100 is strictly inside the band of
+    another's rounds (_round2, round(value, 2)) as that one does."""
+    from robox.sim.quality import _round2, _round2_band
+
+    low, high = _round2_band(z * 100.0)
+    other = z + dz
+    for near in (other, low / 100.0, high / 100.0, math.nextafter(low, 0.0) / 100.0):
+        if low < near * 100.0 < high:
+            assert _round2(near) == _round2(z) == round(z, 2)
+
+
+def test_the_layers_on_a_tilted_gantry_are_each_row_s_height_rounded():
+    """On a gantry whose two ends stand at different heights the nozzle's height follows
+    the carriage by fractions of a microstep, so hardly a row repeats another's height
+    exactly: the layers are still every row's height rounded to 0.01 mm (merged as
+    close ones are), as working each one out gives."""
+    from robox.sim.quality import LAYER_MERGE_MM, Quality, _round2
+
+    m, dep = machine()
+    for k in range(60):
+        base = round((0.2 + 0.15 * (k // 12)) * 6400)
+        m.za, m.zb = base, base + 37 + k % 5  # the gantry's right end higher
+        m.x, m.y = 2674 + 400 * k, 2674 + 90 * (k % 7)
+        m.step(B, B_UNIT)
+        m.step(E, 400)
+        m.step(X, 300)
+        m.step(E, 200)
+        m.step(B, -B_UNIT)
+    dep.finish()
+    quality = Quality(dep, [(0.0, 0.0, 0.0)] * 2, (210.0, 150.0))
+    heights = sorted({_round2(z) for _, _, x1, y1, z, dep_mm3, *_ in quality.rows()
+                      if dep_mm3 > 0.0 and quality.on_plate(x1, y1)})
+    assert len(heights) > 5
+    expected: list[float] = []
+    for z in heights:
+        if not expected or z - expected[-1] > LAYER_MERGE_MM:
+            expected.append(z)
+    assert quality.layers == expected

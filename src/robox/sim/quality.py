@@ -135,6 +135,10 @@ class Quality:
         run: Place | None = None  # the starved stretch being followed
         last_path = -2
         added_z = math.nan  # the height last rounded into `heights` (a row's mostly repeats)
+        # the heights (times 100) that round as the last one rounded did: the nozzle's
+        # height follows the carriage by fractions of a microstep on a levelled gantry,
+        # so it seldom repeats exactly, but stays within a layer's band
+        band_low = band_high = math.nan
         hypot = math.hypot  # (a local: compiled, the module's attribute is not looked up per row)
         # rows() walked by index over the record's columns (compiled, natively: a row of
         # rows() is a tuple of boxed numbers)
@@ -152,8 +156,11 @@ class Quality:
                 z, dep, drv = cz[k] - oz, cdep[k], cdrv[k]
                 on_plate = self.on_plate(x1, y1)
                 if dep > 0.0 and on_plate and z != added_z:
-                    heights.add(_round2(z))
                     added_z = z
+                    hundredths = z * 100.0
+                    if not band_low < hundredths < band_high:
+                        heights.add(_round2(z))
+                        band_low, band_high = _round2_band(hundredths)
                 if path < 0 or not on_plate:
                     continue
                 deposited += dep
@@ -219,6 +226,20 @@ def _round2(value: float) -> float:
             nearest = whole + 1.0 if frac > 0.5 else whole
             return nearest / 100.0 if nearest != 0.0 else math.copysign(0.0, value)
     return round(value, 2)
+
+
+def _round2_band(y: float) -> tuple[float, float]:
+    """For y = value * 100: the open interval of such products whose values _round2()
+    rounds as it rounds this one (each a whole number of hundredths, the same one),
+    each product's fraction far enough from a half for its rounding not to matter
+    (an empty interval where this one's is not)."""
+    if abs(y) < 1e9:
+        whole = math.floor(y)
+        frac = y - whole
+        if abs(frac - 0.5) > 1e-5:
+            nearest = whole + 1.0 if frac > 0.5 else whole
+            return nearest - 0.49999, nearest + 0.49999
+    return math.nan, math.nan
 
 
 def _blank(c: int) -> bool:
