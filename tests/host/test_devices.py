@@ -10,7 +10,13 @@ from click.testing import CliRunner
 
 from robox.cli import cli
 from robox.host import devices
-from robox.host.transport import Disconnected, PermissionDenied, SerialTransport, UsbTransport
+from robox.host.transport import (
+    Disconnected,
+    NoReply,
+    PermissionDenied,
+    SerialTransport,
+    UsbTransport,
+)
 from robox.sim.printer import VirtualPrinter
 from robox.sim.usb_backend import VirtualRoboxBackend
 from tests.cli.test_sdcard_cli import one_line_error
@@ -196,3 +202,69 @@ def test_a_serial_port_gone_between_the_write_and_its_drain_is_a_disconnect(tmp_
         port.close()
         os.close(master)
         os.close(slave)
+
+
+@pytest.fixture
+def pty_port():
+    """A SerialTransport on a pty's slave, and the master: the other end."""
+    master, slave = os.openpty()
+    port = SerialTransport(os.ttyname(slave))
+    os.set_blocking(master, False)
+    ends = {"master": master}
+    yield port, ends
+    port.close()
+    if ends["master"] is not None:
+        os.close(ends["master"])
+    os.close(slave)
+
+
+@pytest.mark.parametrize("descriptor", [True, False])
+def test_a_serial_port_s_bytes_go_through_its_descriptor(pty_port, descriptor):
+    """On a tty the transport reads and writes the port's descriptor (elsewhere, through
+    pyserial's read and write, alike): what it writes is at the other end whole, and a
+    read returns what has come, up to its limit, the rest left for the next ones."""
+    port, ends = pty_port
+    master = ends["master"]
+    assert port._fd == port.port.fileno()
+    if not descriptor:
+        port._fd = None
+    frame = bytes(range(256)) * 4
+    port.write(frame)
+    assert os.read(master, 4096) == frame
+    os.write(master, b"\xe3" + b"0" * 99)
+    got = []
+    while sum(map(len, got)) < 100:
+        got.append(port.read(64, timeout_ms=1000))
+    assert b"".join(got) == b"\xe3" + b"0" * 99 and max(map(len, got)) <= 64
+
+
+def test_a_serial_read_with_nothing_coming_times_out_as_no_reply(pty_port):
+    import time
+
+    port, _ = pty_port
+    start = time.monotonic()
+    with pytest.raises(NoReply):
+        port.read(64, timeout_ms=150)
+    assert 0.14 <= time.monotonic() - start < 2.0
+
+
+def test_a_serial_port_whose_other_end_went_is_a_disconnect(pty_port):
+    """The other end closed (a served printer killed): a read finds the port hung up, a
+    write cannot land; each is a disconnect, never a traceback."""
+    port, ends = pty_port
+    os.close(ends["master"])
+    ends["master"] = None
+    with pytest.raises(Disconnected):
+        port.read(64, timeout_ms=1000)
+    with pytest.raises(Disconnected):
+        port.write(b"\xb0")
+
+
+def test_a_serial_write_nobody_takes_gives_up_as_a_disconnect(pty_port, monkeypatch):
+    """A port that takes no more (its buffer full, nobody reading the other end) is given
+    up after the write timeout, as pyserial's write_timeout did."""
+    port, _ = pty_port
+    monkeypatch.setattr(SerialTransport, "WRITE_TIMEOUT_S", 0.2)
+    with pytest.raises(Disconnected):
+        for _ in range(64):  # (a pty's buffer holds some kilobytes)
+            port.write(b"G" * 65536)
