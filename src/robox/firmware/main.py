@@ -33,7 +33,7 @@ from robox.firmware.user_interface import UserInterface
 from robox.formats.firmware import IMAGE_PAGES, PAGE_SIZE, flashed_image_pages, image_revision
 from robox.formats.firmware import word_sum as image_sum
 from robox.formats.protocol import ErrorBit
-from robox.hardware.clock import SimClock
+from robox.hardware.clock import PassCondition, SimClock
 from robox.hardware.eeprom_bus import EepromBus
 from robox.hardware.flash import Flash
 from robox.hardware.machine import Machine
@@ -395,9 +395,16 @@ class Firmware:
         reply sent while a line waits (a Pronterface line inside maintain_commands, say) is
         there to read at once, the lines before it answered."""
         end = self.clock.now + timeout
+        # a compiled condition is asked natively (see PassCondition)
+        native: PassCondition | None = None
+        if isinstance(condition, PassCondition):
+            native = condition
         _count: i64  # (a native count: compiled, `_` would be boxed at every pass)
         for _count in range(max_passes):
-            if condition is not None and condition():
+            if native is not None:
+                if native.holds():
+                    return True
+            elif condition is not None and condition():
                 return True
             if self.clock.now >= end:
                 return False

@@ -59,11 +59,22 @@ UNLOADING_D: Final = 4
 REELS: Final = (EepromIndex.REEL0, EepromIndex.REEL1)
 
 
+class MoveWatcher:
+    """An observer outside the firmware of the moves the position object queues (such
+    as `simulate`'s): set as `Position.watcher`, its moved() is called natively,
+    compiled, with each queued move's per-axis distances."""
+
+    def moved(self, moves: vec[float]) -> None:
+        raise NotImplementedError
+
+
 class Position:
     #: Called with each queued move's per-axis distances once the position has taken
-    #: them in (an observer outside the firmware, such as `simulate`; None: nobody).
+    #: them in (an observer outside the firmware; None: nobody). `watcher` is told
+    #: first, natively (see MoveWatcher).
     #: The vector is reused for the line's next segment: an observer that keeps it copies it.
     on_move: Callable[[vec[float]], None] | None
+    watcher: MoveWatcher | None
     # per axis (X Y Z E D B): packed vectors compiled (robox.packed), lists otherwise
     destination: vec[float]
     position: vec[float]
@@ -76,6 +87,7 @@ class Position:
     def __init__(self, firmware: Firmware):
         self.fw = firmware
         self.on_move = None
+        self.watcher = None
 
     def initialise(self) -> None:
         self.motion = self.fw.motion
@@ -199,6 +211,9 @@ class Position:
         pos = self.position
         for i in range(6):
             pos[i] = f32(pos[i] + moves[i])
+        watcher = self.watcher
+        if watcher is not None:
+            watcher.moved(moves)
         if self.on_move is not None:
             self.on_move(moves)
         moved = False

@@ -8,6 +8,19 @@ from typing import Final
 from robox.packed import i64
 
 
+class PassCondition:
+    """What Firmware.run_until looks at after every pass. Compiled, a subclass's holds()
+    is called there natively, where any other callable goes through Python's call
+    protocol at every pass (hundreds of thousands in a print); called, it answers
+    holds()."""
+
+    def holds(self) -> bool:
+        raise NotImplementedError
+
+    def __call__(self) -> bool:
+        return self.holds()
+
+
 class SimClock:
     """Seconds since power-up, advanced explicitly."""
 

@@ -21,6 +21,7 @@ disconnect drops everything in both directions.
 from __future__ import annotations
 
 from robox.errors import RoboxError
+from robox.hardware.clock import PassCondition
 
 PACKET_SIZE = 64
 
@@ -148,7 +149,7 @@ class UsbLink:
         return True
 
 
-class ReplyWaiting:
+class ReplyWaiting(PassCondition):
     """A condition for Firmware.run_until: a reply waits for the host (with `or_gone`, or
     the link is gone). A compiled object, where a lambda would run interpreted after
     every pass."""
@@ -157,6 +158,6 @@ class ReplyWaiting:
         self.link = link
         self.or_gone = or_gone
 
-    def __call__(self) -> bool:
+    def holds(self) -> bool:
         link = self.link
         return link.reply_waiting > 0 or (self.or_gone and not link.connected)

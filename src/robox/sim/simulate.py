@@ -6,7 +6,7 @@ command on a printer with the chosen head and full reels. A host asks for the
 error report every few simulated seconds, as send-job --wait does, so the
 printer counts a host as connected. While it prints:
 
-- every move the position object queues is watched (Position.on_move): the
+- every move the position object queues is watched (Position.watcher): the
   job-frame coordinates of extruding moves (the extent, and moves outside the
   build plate), moves whose X or Y the firmware clamps to the axes' travel,
   and filament pushed while the valve of a head that has one is shut;
@@ -242,9 +242,10 @@ def _print(virtual: VirtualPrinter, watch: Watch, report: Report,
     finished = fw.job.jobs_completed
     virtual.transact(b"\x94" + make_id(JOB_ID))
     pauses: list[int] = []
+    passes = watch.passes()
     while True:
-        virtual.run_until(watch.sample, POLL_S)
-        if fw.position.on_move is None:  # the printer was reset: a new position object
+        virtual.run_until(passes, POLL_S)
+        if fw.position.watcher is None:  # the printer was reset: a new position object
             watch.attach()
         bits = _errors(virtual)
         job = fw.job

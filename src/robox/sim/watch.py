@@ -1,10 +1,11 @@
 """A simulated print watched from outside the firmware: every queued move, every pass.
 
-`simulate` attaches a `Watch` to the position object (`Position.on_move`, called for
-each move it queues) and runs the printer with `Watch.sample` as the condition looked at
-after every pass. Both run hundreds of thousands of times in a print, so this module
-is part of the compiled core (robox.native); `robox.sim.simulate` turns what it saw
-into the report.
+`simulate` attaches a `Watch` to the position object (its watcher, told of each move
+it queues) and runs the printer with `Watch.passes()` as the condition looked at after
+every pass (`Watch.sample`). Both run hundreds of thousands of times in a print, so
+this module is part of the compiled core (robox.native), and the firmware calls both
+natively (`MoveWatcher`, `PassCondition`); `robox.sim.simulate` turns what it saw into
+the report.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from typing import Any, Final
 # (Firmware imported at run time, not only for the type checker: the compiled module
 # reads its attributes natively, through its class, which must be there first)
 from robox.firmware.main import Firmware
+from robox.firmware.position import MoveWatcher
+from robox.hardware.clock import PassCondition
 from robox.hardware.deposition import Deposition
 from robox.hardware.machine import B, D, E, ThermalModel, X, Y, Z
 from robox.packed import vec
@@ -29,7 +32,7 @@ EPSILON_MM: Final = 1e-3
 
 
 @dataclass
-class Watch:
+class Watch(MoveWatcher):
     """What the queued moves did, and the heaters' peaks and the job's furthest line
     over the passes."""
 
@@ -52,7 +55,11 @@ class Watch:
     reached: int = 0  # the furthest line the job came to
 
     def attach(self) -> None:
-        self.fw.position.on_move = self.on_move
+        self.fw.position.watcher = self
+
+    def passes(self) -> PassCondition:
+        """The condition to run the printer with: sample() after every pass."""
+        return _Sampled(self)
 
     def watch_heaters(self, heaters: list[ThermalModel]) -> None:
         self.heaters = heaters
@@ -79,12 +86,15 @@ class Watch:
             lines.append(line)
 
     def on_move(self, moves: Any) -> None:
-        # (`moves` is the position object's packed vector, boxed for this call; taken
-        # as any object: a compiled method that takes a packed vector through its
-        # Python entry keeps a reference to each one passed, and the segments' vectors
-        # would pile up, one per queued move. Unboxed once here, its items are read
-        # natively.)
+        """moved(), for a caller in Python: `moves` taken as any object (a compiled
+        method that takes a packed vector through its Python entry keeps a reference
+        to each one passed, and the segments' vectors would pile up, one per queued
+        move), unboxed once here."""
         distances: vec[float] = moves
+        self.moved(distances)
+
+    def moved(self, moves: vec[float]) -> None:
+        distances = moves
         fw = self.fw
         p = fw.position
         line: int = fw.job.line_number
@@ -120,3 +130,13 @@ class Watch:
                 pushed = distances[E + n]
                 if pushed > 0.0:
                     self.shut_mm[n] += pushed
+
+
+class _Sampled(PassCondition):
+    """Watch.sample as the condition Firmware.run_until asks natively."""
+
+    def __init__(self, watch: Watch) -> None:
+        self.watch = watch
+
+    def holds(self) -> bool:
+        return self.watch.sample()
