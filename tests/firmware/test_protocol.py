@@ -115,6 +115,39 @@ def test_status_report_field_by_field(wire):
     assert f["head_power"] == b"0" and f["hw_rev"] == b"2"  # revision 2 hardware
 
 
+def test_the_status_report_follows_each_change_of_what_it_keeps(wire):
+    """The report keeps the last field of each position figure and whether the head is
+    dual-material, and works out again only what changed: the positions follow the
+    head report after report (an axis that stood reads as before, B's -0.0 under T1
+    reads as such, not as the 0.0 it equals), and a head swapped for a dual-material
+    one shows both extruders."""
+    from robox.firmware.cline import report_float
+    from robox.sim import images
+
+    p = wire.fw.position
+
+    def fresh() -> list[bytes]:  # each figure worked out anew
+        return [report_float(v, False) for v in p._shown()]
+
+    reports = []
+    for x, tool in ((0.0, 0), (12.5, 0), (12.5, 1), (40.25, 1), (40.25, 0)):
+        p.position[0] = x  # the head moves in X; Y, Z and B stand
+        p.tool = tool
+        f = status_fields(wire.raw(b"\xb0"))
+        assert f["positions"] == fresh() and f["tool"] == b"%d" % tool
+        reports.append(f["positions"])
+    assert [r[0] for r in reports] == [nul8(0.0), nul8(12.5), nul8(12.5), nul8(40.25),
+                                       nul8(40.25)]
+    assert [r[3] for r in reports] == [nul8(0.0)] * 2 + [nul8(-0.0)] * 2 + [nul8(0.0)]
+    assert nul8(-0.0) != nul8(0.0)
+    assert status_fields(wire.raw(b"\xb0"))["extruders"] == b"10"
+    head = wire.printer.hw.eeprom_bus.sockets[0]
+    head.data = images.head_eeprom(False, "RBX01-DM")
+    wire.fw.eeproms.initialise()  # (read again, as at power-up)
+    wire.printer.settle()
+    assert status_fields(wire.raw(b"\xb0"))["extruders"] == b"11"
+
+
 def test_a_partial_command_waits_for_its_bytes(wire):
     wire.ok(b"\x97" + ident("part"))
     frame = b"\x91" + hexn(0, 8) + b"G" * 512

@@ -303,8 +303,14 @@ class Eeproms:
 
     def status_characters(self) -> bytes:
         """The four characters of the status report: three states and the mux flag."""
-        states = bytes(0x30 + int(s.status) for s in self.states)
-        return states + (b"1" if self.bus.mux_present else b"0")
+        out = bytearray(b"0000")
+        states = self.states
+        k: i64
+        for k in range(3):  # (a buffer: compiled, no generator is made)
+            out[k] = 0x30 + int(states[k].status)
+        if self.bus.mux_present:
+            out[3] = 0x31
+        return bytes(out)
 
     def host_write(self, index: EepromIndex, address: int, data: bytes) -> bool:
         """Write from the host; bytes beyond address 191 are ignored."""

@@ -278,13 +278,27 @@ class Motion:
     def switch_states(self) -> bytes:
         """Status bytes 27..33 (axis switches, lid) and 35..37 (index wheels, Z-top)."""
         m = self.machine
-        flags = [self.switch_actuated(i) for i in range(6)] + [m.lid_pin()]
-        return bytes(0x31 if f else 0x30 for f in flags)
+        invert = self.fw.parameters.invert_switch  # (switch_actuated's, by axis index)
+        # (a character at a time into a buffer: compiled, no generator or list is made)
+        out = bytearray(b"0000000")
+        i: i64
+        for i in range(6):
+            if m.switch_pin(i) != invert[i]:
+                out[i] = 0x31
+        if m.lid_pin():
+            out[6] = 0x31
+        return bytes(out)
 
     def index_and_z_top(self) -> bytes:
         m = self.machine
-        return bytes(0x31 if f else 0x30
-                     for f in (m.index_wheel(E), m.index_wheel(D), self.z_top_actuated()))
+        out = bytearray(b"000")
+        if m.index_wheel(E):
+            out[0] = 0x31
+        if m.index_wheel(D):
+            out[1] = 0x31
+        if self.z_top_actuated():
+            out[2] = 0x31
+        return bytes(out)
 
     def m119_text(self) -> bytes:
         s = [int(self.switch_actuated(i)) for i in range(6)]

@@ -57,6 +57,8 @@ UNLOADING_E: Final = 2
 LOADING_D: Final = 3
 UNLOADING_D: Final = 4
 REELS: Final = (EepromIndex.REEL0, EepromIndex.REEL1)
+#: Status byte 26 for each filament load and unload (busy_state).
+_BUSY_STATE: Final = {LOADING_E: b"2", UNLOADING_E: b"3", LOADING_D: b"4", UNLOADING_D: b"5"}
 
 
 class MoveWatcher:
@@ -88,6 +90,11 @@ class Position:
         self.fw = firmware
         self.on_move = None
         self.watcher = None
+        # position_report's last fields (_reported) and extruder_present's answer
+        self._report_values = vec[float]([math.nan] * 4)
+        self._report_fields = [b""] * 4
+        self._dual_of: bytes | None = None
+        self._dual = False
 
     def initialise(self) -> None:
         self.motion = self.fw.motion
@@ -633,8 +640,15 @@ class Position:
         if extruder == "E":
             return True
         head = self.fw.eeproms
-        return head.status(EepromIndex.HEAD) == 2 and \
-            head.states[EepromIndex.HEAD].data[:16].rstrip(b"\0 ").endswith(b"DM")
+        if head.status(EepromIndex.HEAD) != 2:
+            return False
+        # (every status report asks: the answer is kept for the bank it was read from,
+        # an immutable bytes object replaced whenever the head's EEPROM changes)
+        bank = head.states[EepromIndex.HEAD].buffer
+        if bank is not self._dual_of:
+            self._dual_of = bank
+            self._dual = bank[:16].rstrip(b"\0 ").endswith(b"DM")
+        return self._dual
 
     def set_filament_info(self, extruder: str, raw: bytes) -> None:
         """0xc8/0xc9: diameter (at least 0.1) and multiplier (at least 0)."""
@@ -661,8 +675,22 @@ class Position:
 
     def position_report(self) -> bytes:
         """Status bytes 139..171: X, Y, Z, B as float8 (NUL padded), then the tool."""
-        # (not kept: while a job runs, the head is somewhere else at every report)
-        return b"".join(report_float(v, False) for v in self._shown()) + b"%d" % self.tool
+        x, y, z, b = self._shown()
+        return (self._reported(0, x) + self._reported(1, y) + self._reported(2, z)
+                + self._reported(3, b) + b"%d" % self.tool)
+
+    def _reported(self, k: i64, value: float) -> bytes:
+        """report_float(value, False) for the k-th figure of position_report, the field
+        the last report gave it kept (not in report_float's own store: while a job runs
+        the head is somewhere else at every report, but Z within a layer and B repeat).
+        A zero is worked out each time (-0.0 equals 0.0 and reads otherwise), and so is
+        NaN, which equals nothing."""
+        if value == self._report_values[k] and value != 0.0:
+            return self._report_fields[k]
+        field = report_float(value, False)
+        self._report_values[k] = value
+        self._report_fields[k] = field
+        return field
 
     def filament_report(self) -> bytes:
         """Status bytes 172..219: E and D diameters and multipliers, then the D and E
@@ -673,8 +701,7 @@ class Position:
 
     def busy_state(self) -> bytes | None:
         """Status byte 26 while filament is being loaded ('2', '4') or unloaded ('3', '5')."""
-        return {LOADING_E: b"2", UNLOADING_E: b"3", LOADING_D: b"4",
-                UNLOADING_D: b"5"}.get(self.what)
+        return _BUSY_STATE.get(self.what)
 
 
 class MoveRun(Resumable):
