@@ -113,17 +113,14 @@ class FileStorage:
         self.size = os.fstat(self._file.fileno()).st_size
 
     def read(self, offset: int, length: int) -> bytes:
-        # (one pread, not a seek and a read: the card's model reads a block at a time)
-        return os.pread(self._file.fileno(), length, offset)
+        self._file.seek(offset)
+        return self._file.read(length)
 
     def write(self, offset: int, data: bytes) -> None:
         if not self.writable:
             raise PermissionError(f"{self.path} is open read-only")
-        fd = self._file.fileno()
-        view = memoryview(data)
-        while view:  # (a write may take less than all it is given)
-            done = os.pwrite(fd, view, offset)
-            view, offset = view[done:], offset + done
+        self._file.seek(offset)
+        self._file.write(data)
 
     def flush(self) -> None:
         if self.writable:
