@@ -213,33 +213,35 @@ def _merged(heights: list[float]) -> list[float]:
     return layers
 
 
+def _nearest_hundredth(y: float) -> float:
+    """For y = value * 100: the whole number nearest to it, where y is far enough from a
+    half for its rounding not to matter (within 1e-6 of one, or too large: NaN)."""
+    if abs(y) < 1e9:
+        whole = float(math.floor(y))
+        frac = y - whole
+        if abs(frac - 0.5) > 1e-6:
+            return whole + 1.0 if frac > 0.5 else whole
+    return math.nan
+
+
 def _round2(value: float) -> float:
     """round(value, 2), worked out natively (compiled, round() is a generic call) where
     value * 100 is far enough from a half for its rounding not to matter: the whole
     number nearest to it, over 100, is then the double nearest the two-place decimal,
     as round() gives; round() itself otherwise."""
-    y = value * 100.0
-    if abs(y) < 1e9:
-        whole = math.floor(y)
-        frac = y - whole
-        if abs(frac - 0.5) > 1e-6:
-            nearest = whole + 1.0 if frac > 0.5 else whole
-            return nearest / 100.0 if nearest != 0.0 else math.copysign(0.0, value)
+    nearest = _nearest_hundredth(value * 100.0)
+    if nearest == nearest:
+        return nearest / 100.0 if nearest != 0.0 else math.copysign(0.0, value)
     return round(value, 2)
 
 
 def _round2_band(y: float) -> tuple[float, float]:
     """For y = value * 100: the open interval of such products whose values _round2()
-    rounds as it rounds this one (each a whole number of hundredths, the same one),
-    each product's fraction far enough from a half for its rounding not to matter
-    (an empty interval where this one's is not)."""
-    if abs(y) < 1e9:
-        whole = math.floor(y)
-        frac = y - whole
-        if abs(frac - 0.5) > 1e-5:
-            nearest = whole + 1.0 if frac > 0.5 else whole
-            return nearest - 0.49999, nearest + 0.49999
-    return math.nan, math.nan
+    rounds as it rounds this one, the same whole number of hundredths, each far enough
+    from a half (by more than 1e-6) for its rounding not to matter. Empty (NaN bounds)
+    where this one's is not."""
+    nearest = _nearest_hundredth(y)
+    return nearest - 0.499999, nearest + 0.499999
 
 
 def _blank(c: int) -> bool:
