@@ -267,7 +267,9 @@ class Motion:
 
     # ------------------------------------------------------------ inputs
     def switch_actuated(self, axis: int) -> bool:
-        return self.machine.switch_pin(axis) != self.pa["invert_switch"][AXES[axis]]
+        # (the parameters' per-axis copy of M526's settings: a native index, where the
+        # settings' dicts are two lookups)
+        return self.machine.switch_pin(axis) != self.fw.parameters.invert_switch[axis]
 
     def z_top_actuated(self) -> bool:
         return self.z_top_counter >= Z_TOP_DEGLITCH
@@ -277,15 +279,13 @@ class Motion:
 
     def switch_states(self) -> bytes:
         """Status bytes 27..33 (axis switches, lid) and 35..37 (index wheels, Z-top)."""
-        m = self.machine
-        invert = self.fw.parameters.invert_switch  # (switch_actuated's, by axis index)
         # (a character at a time into a buffer: compiled, no generator or list is made)
         out = bytearray(b"0000000")
         i: i64
         for i in range(6):
-            if m.switch_pin(i) != invert[i]:
+            if self.switch_actuated(i):
                 out[i] = 0x31
-        if m.lid_pin():
+        if self.machine.lid_pin():
             out[6] = 0x31
         return bytes(out)
 
