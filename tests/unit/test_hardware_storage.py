@@ -1,10 +1,15 @@
 """MemoryStorage: copy on write over bytes (by chunks), a copy of a bytearray, adopt
-without a copy."""
+without a copy. FileStorage: reads and writes at an offset, through the descriptor or
+through the file object, as a bytearray takes them."""
+
+import os
+import tempfile
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robox.hardware.storage import MemoryStorage
+from robox.hardware import storage as storage_module
+from robox.hardware.storage import FileStorage, MemoryStorage
 
 
 def test_stores_built_from_the_same_bytes_are_independent():
@@ -69,3 +74,73 @@ def test_copy_on_write_reads_as_a_plain_bytearray(size, steps):
             assert bytes(store.data) == bytes(model)
     assert store.read(0, size) == bytes(model) and store.size == len(model)
     assert base == bytes((i * 7 + 3) & 0xFF for i in range(size))  # the source untouched
+
+
+file_ops = st.lists(st.tuples(st.sampled_from(["write", "read"]), st.integers(0, 5000),
+                              st.integers(0, 1500), st.integers(0, 255)), max_size=25)
+
+
+@given(st.integers(0, 4096), file_ops, st.booleans())
+@settings(max_examples=150, deadline=None)
+def test_a_file_store_reads_and_writes_at_offsets_as_a_bytearray(size, steps, descriptor):
+    """Each read and write lands at its own offset whatever came before it (a read
+    after a write elsewhere, a write past the end growing the file), through the
+    descriptor (pread, pwrite) and through the file object (seek, then read or write),
+    as an emulated file system's file is taken."""
+    base = bytes((i * 11 + 5) & 0xFF for i in range(size))
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "image")
+        with open(path, "wb") as f:
+            f.write(base)
+        model = bytearray(base)
+        with FileStorage(path, writable=True) as store:
+            assert (store._fd >= 0) is True  # an operating system's file: its descriptor
+            if not descriptor:
+                store._fd = -1
+            for op, offset, length, value in steps:
+                if op == "write":
+                    data = bytes([value]) * length
+                    store.write(offset, data)
+                    if offset > len(model) and length:  # (an empty write grows nothing)
+                        model.extend(bytes(offset - len(model)))
+                    model[offset : offset + length] = data
+                else:
+                    assert store.read(offset, length) == bytes(model[offset : offset + length])
+        with open(path, "rb") as f:
+            assert f.read() == bytes(model)
+
+
+def test_a_write_the_system_takes_in_parts_lands_whole(monkeypatch):
+    """pwrite may take less than it is given: the rest follows at its own offset."""
+    real = os.pwrite
+    calls = []
+
+    def partial(fd, data, offset):
+        calls.append(offset)
+        return real(fd, bytes(data[:100]), offset)
+
+    monkeypatch.setattr(storage_module.os, "pwrite", partial)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "image")
+        with open(path, "wb") as f:
+            f.write(bytes(1024))
+        data = bytes(range(256)) * 2
+        with FileStorage(path, writable=True) as store:
+            store.write(300, data)
+            assert store.read(300, 512) == data and store.read(0, 300) == bytes(300)
+        assert calls == [300, 400, 500, 600, 700, 800]
+
+
+def test_a_read_only_file_store_refuses_a_write():
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "image")
+        with open(path, "wb") as f:
+            f.write(b"abc")
+        with FileStorage(path) as store:
+            try:
+                store.write(0, b"x")
+            except PermissionError:
+                pass
+            else:
+                raise AssertionError("a read-only store took a write")
+            assert store.read(0, 3) == b"abc"

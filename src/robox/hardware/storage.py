@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 from typing import Protocol
 
@@ -111,16 +112,30 @@ class FileStorage:
             self._file.close()
             raise
         self.size = os.fstat(self._file.fileno()).st_size
+        # An operating system's file is read and written at an offset in one system call
+        # (the card's model goes a block at a time: a seek and a read were two). Any
+        # other file object (an emulated file system's, in tests), or a system without
+        # pread (Windows), seeks first.
+        self._fd = self._file.fileno() \
+            if type(self._file) is io.FileIO and hasattr(os, "pread") else -1
 
     def read(self, offset: int, length: int) -> bytes:
+        if self._fd >= 0:
+            return os.pread(self._fd, length, offset)
         self._file.seek(offset)
         return self._file.read(length)
 
     def write(self, offset: int, data: bytes) -> None:
         if not self.writable:
             raise PermissionError(f"{self.path} is open read-only")
-        self._file.seek(offset)
-        self._file.write(data)
+        if self._fd < 0:
+            self._file.seek(offset)
+            self._file.write(data)
+            return
+        view = memoryview(data)
+        while view:  # (a write may take less than it is given)
+            done = os.pwrite(self._fd, view, offset)
+            view, offset = view[done:], offset + done
 
     def flush(self) -> None:
         if self.writable:
