@@ -31,3 +31,17 @@ def test_a_report_reads_back_as_its_bits(bits):
     flags = ErrorFlags()
     flags.bits = bits
     assert error_bits(b"\xe3" + flags.report()) == bits
+
+
+@given(st.lists(st.one_of(st.integers(0, 2**70), st.just(0),
+                          st.sampled_from([1, 1 << 63, (1 << 64) | 1])), max_size=12))
+def test_report_after_report_follows_every_change_of_the_bits(history):
+    """One flags object reporting again and again (the report is kept while the bits
+    stand): each report is the bits as they are then, character by character."""
+    flags = ErrorFlags()
+    for bits in [0, *history]:
+        flags.bits = bits
+        for _ in range(2):
+            report = flags.report()
+            assert report == bytes(ord("1") if bits >> i & 1 else ord("0")
+                                   for i in range(64))

@@ -10,6 +10,10 @@ class ErrorFlags:
 
     def __init__(self) -> None:
         self.bits = 0
+        # the last report and the bits it was made from (asked with every ack, and the
+        # bits seldom change between two)
+        self._reported = -1
+        self._report = b""
 
     def set(self, bit: ErrorBit) -> None:
         self.bits |= 1 << bit
@@ -29,4 +33,7 @@ class ErrorFlags:
     def report(self) -> bytes:
         """The 64 characters of the 0xe3 report: character i is bit i."""
         low = self.bits & ((1 << ERROR_REPORT_BITS) - 1)
-        return format(low, f"0{ERROR_REPORT_BITS}b")[::-1].encode("ascii")
+        if low != self._reported:
+            self._report = format(low, f"0{ERROR_REPORT_BITS}b")[::-1].encode("ascii")
+            self._reported = low
+        return self._report
