@@ -36,9 +36,10 @@ simulate loads its own); `--empty` measures the printer with empty feeds instead
 (simulate is then left out). Each figure gives wall and CPU seconds (the process's
 own, or the child's) and simulated time over each.
 
-The whole path and simulate (2. and 3.) run `--repeat` times (default 3), each on a
-fresh state: their figures are the medians, and the ratio's range over the runs is
-given beside it, since a run of a few seconds moves with whatever else the machine does.
+The whole path, simulate and the served figures (2. to 4.) run `--repeat` times
+(default 3), each on a fresh state: their figures are the medians, and the ratio's
+range over the runs is given beside it, since a run of a few seconds moves with
+whatever else the machine does (two processes talking over a pty, more so).
 
 Asserts nothing.
 """
@@ -295,24 +296,35 @@ def served_printer(state: Path, *options: str):
         robox_cli("sim", "stop", "--state", str(state))
 
 
-def served_whole_path(path: Path, loaded: bool, in_process_rate: float) -> None:
-    """`send-job --wait` to a printer served as fast as it can run."""
+def served_whole_path(path: Path, loaded: bool, in_process_rate: float,
+                      repeat: int) -> None:
+    """`send-job --wait` to a printer served as fast as it can run, `repeat` times, each
+    on a fresh state: the median wall time, and the range of the rate over the runs
+    (two processes on a shared machine move more from run to run than one)."""
     with open(path, "rb") as f:
         lines = sum(1 for _ in f)
-    with tempfile.TemporaryDirectory() as tmp:
-        state = fresh_state(Path(tmp), loaded)
-        with served_printer(state) as pid:
-            server0 = server_cpu(pid)
-            start = time.perf_counter()
-            out, _, cpu = robox_cli("--device", f"sim:{state}", "send-job", str(path),
-                                    "--wait", "--json")
-            wall = time.perf_counter() - start
-            server = server_cpu(pid) - server0
-    summary = json.loads(out)
+    walls, hosts, servers, errors = [], [], [], set()
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as tmp:
+            state = fresh_state(Path(tmp), loaded)
+            with served_printer(state) as pid:
+                server0 = server_cpu(pid)
+                start = time.perf_counter()
+                out, _, cpu = robox_cli("--device", f"sim:{state}", "send-job", str(path),
+                                        "--wait", "--json")
+                walls.append(time.perf_counter() - start)
+                servers.append(server_cpu(pid) - server0)
+        hosts.append(cpu)
+        errors.update(json.loads(out)["errors"])
+    wall = statistics.median(walls)
     rate = lines / wall
+    spread = (f" ({lines / max(walls) / in_process_rate:.0%}-"
+              f"{lines / min(walls) / in_process_rate:.0%} over {repeat} runs)"
+              if repeat > 1 else "")
     print(f"  served (sim serve, its pty): {wall:.2f} s wall, {rate:,.0f} lines/s, "
-          f"{rate / in_process_rate:.0%} of the in-process rate; CPU: host {cpu:.2f} s, "
-          f"server {server:.2f} s; errors {summary['errors'] or 'none'}")
+          f"{rate / in_process_rate:.0%} of the in-process rate{spread}; CPU: host "
+          f"{statistics.median(hosts):.2f} s, server {statistics.median(servers):.2f} s; "
+          f"errors {', '.join(sorted(errors)) or 'none'}")
 
 
 def upload_text(size: int) -> bytes:
@@ -333,8 +345,9 @@ def bus_packets(data: bytes) -> int:
     return sum(-(-n // 64) for n in frames)
 
 
-def served_upload(speeds: tuple[float, ...], size: int = 100_000) -> None:
-    """An upload (stored, not printed) over a served printer's pty, paced."""
+def served_upload(speeds: tuple[float, ...], repeat: int, size: int = 100_000) -> None:
+    """An upload (stored, not printed) over a served printer's pty, paced; at each speed
+    `repeat` times, each to a fresh printer: the median wall time and its range."""
     from robox.host.devices import open_printer
     from robox.sim.printer import create_state
 
@@ -352,16 +365,21 @@ def served_upload(speeds: tuple[float, ...], size: int = 100_000) -> None:
           f"packets: transfer limit {limit_s:.2f} s of printer time; in process "
           f"{in_process_s:.2f} s of printer time")
     for speed in speeds:
-        with tempfile.TemporaryDirectory() as tmp:
-            state = Path(tmp) / "printer"
-            create_state(state)
-            with served_printer(state, "--speed", repr(speed)), \
-                    open_printer(f"sim:{state}") as printer:
-                start = time.perf_counter()
-                printer.send_file(data, "upload", run=False)
-                wall = time.perf_counter() - start
+        walls = []
+        for _ in range(repeat):
+            with tempfile.TemporaryDirectory() as tmp:
+                state = Path(tmp) / "printer"
+                create_state(state)
+                with served_printer(state, "--speed", repr(speed)), \
+                        open_printer(f"sim:{state}") as printer:
+                    start = time.perf_counter()
+                    printer.send_file(data, "upload", run=False)
+                    walls.append(time.perf_counter() - start)
+        wall = statistics.median(walls)
+        spread = (f" ({limit_s / speed / max(walls):.0%}-{limit_s / speed / min(walls):.0%}"
+                  f" over {repeat} runs)" if repeat > 1 else "")
         print(f"  served at {speed:g}x: {wall:.2f} s wall, {size / wall / 1000:.1f} KB/s; "
-              f"{limit_s / speed / wall:.0%} of the transfer limit, "
+              f"{limit_s / speed / wall:.0%} of the transfer limit{spread}, "
               f"{in_process_s / speed / wall:.0%} of the in-process rate")
 
 
@@ -455,14 +473,14 @@ def main() -> None:
     for prusa in paths:
         peak, rate = whole_path(prusa, loaded, repeat)
         peaks.append(peak)
-        served_whole_path(prusa, loaded, rate)
+        served_whole_path(prusa, loaded, rate, repeat)
         if loaded:
             simulate_path(prusa, repeat)
     if len(peaks) == 2:
         sizes_mb = [p.stat().st_size / 1e6 for p in paths]
         print(f"  peak RSS, {sizes_mb[1]:.1f} MB job over {sizes_mb[0]:.1f} MB job: "
               f"{peaks[1] / peaks[0]:.2f}x")
-    served_upload((1.0, 10.0))
+    served_upload((1.0, 10.0), repeat)
 
 
 if __name__ == "__main__":
