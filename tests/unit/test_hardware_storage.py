@@ -144,3 +144,19 @@ def test_a_read_only_file_store_refuses_a_write():
             else:
                 raise AssertionError("a read-only store took a write")
             assert store.read(0, 3) == b"abc"
+
+
+def test_a_closed_file_store_fails_as_its_closed_file_does():
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "image")
+        with open(path, "wb") as f:
+            f.write(b"abc")
+        store = FileStorage(path, writable=True)
+        store.close()
+        for use in (lambda: store.read(0, 1), lambda: store.write(0, b"x")):
+            try:
+                use()
+            except ValueError as exc:  # io's "I/O operation on closed file"
+                assert "closed file" in str(exc)
+            else:
+                raise AssertionError("a closed store was used")

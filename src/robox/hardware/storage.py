@@ -142,6 +142,7 @@ class FileStorage:
             os.fsync(self._file.fileno())
 
     def close(self) -> None:
+        self._fd = -1  # (a use after this is the closed file object's error, as before)
         self._file.close()
 
     def __enter__(self) -> FileStorage:
