@@ -5,6 +5,8 @@ import json
 
 import pytest
 from click.testing import CliRunner
+from hypothesis import given
+from hypothesis import strategies as st
 
 from robox.cli import cli
 from robox.gcode import prepare_job
@@ -88,3 +90,43 @@ def test_send_job_wait_over_a_pty_prints_a_job_that_catches_up(tmp_path):
     summary = json.loads(result.output)
     assert summary["lines"] == 3000 and summary["errors"] == []
     assert summary["catch_up_resumes"] >= 1  # it did catch up, and was resumed
+
+
+_REPORT_JOB = st.one_of(st.just(b""), st.text("abcdefghijklmnopqrstuvwxyz0123456789_",
+                                              min_size=1, max_size=16).map(str.encode))
+
+
+@given(job=_REPORT_JOB, line=st.integers(0, 0xFFFFFFFF),
+       pause=st.sampled_from(b"0123456789 ?"), rest=st.binary(min_size=196, max_size=196))
+def test_a_progress_reads_a_report_s_job_line_and_pause(job, line, pause, rest):
+    """What following a job reads of each poll: the job's name (bytes 1-16, NUL padded;
+    none when empty), its line (bytes 17-24, hexadecimal) and the pause state (byte
+    25), whatever the rest of the report holds; the whole Status reads them alike."""
+    from robox.host.client import Progress, Status
+
+    figures = bytes(b if 0x30 <= b <= 0x39 else 0x30 for b in rest)  # digits: parseable
+    report = b"\xe1" + job.ljust(16, b"\0") + b"%08X" % line + bytes([pause]) + figures
+    assert len(report) == 222
+    states = {ord("0"): "running", ord("1"): "pausing", ord("2"): "paused",
+              ord("3"): "resuming", ord("4"): "selfie pause"}  # the protocol's
+    expected = (job.decode() or None, line, states.get(pause, "?"))
+    assert Progress.of(report) == expected
+    status = Status.parse(report)
+    assert (status.job, status.line, status.pause) == expected
+
+
+def test_a_printer_s_progress_is_its_status_job_line_and_pause(virtual):
+    """Asked of the virtual printer with no job, printing one, and with the job paused
+    (standing still: the status asked next is of the same moment)."""
+    printer = connect(virtual)
+    status = printer.status()
+    assert printer.progress() == (status.job, status.line, status.pause) == \
+        (None, 0, "running")
+    printer.send_file(fast_job(3000), "progress", run=True)
+    printing = printer.progress()
+    assert printing.job == "progress" and printing.line > 0
+    printer.transact(b"\x981")  # pause
+    virtual.run_until(None, 30.0)
+    paused, status = printer.progress(), printer.status()
+    assert paused.pause == "paused" and paused.line >= printing.line
+    assert paused == (status.job, status.line, status.pause)

@@ -388,7 +388,7 @@ def _follow(printer, name: str, lines: int, whole: CatchUpPoints, quiet: bool,
                            hidden=quiet) as bar:
         shown = 0
         while True:
-            status = printer.status()
+            status = printer.progress()
             if status.job != name:
                 bar.update(lines - shown)
                 return

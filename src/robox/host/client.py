@@ -16,7 +16,7 @@ from array import array
 from bisect import bisect_left
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import BinaryIO
+from typing import BinaryIO, NamedTuple
 
 from robox.errors import RoboxError, UsageError
 from robox.formats import eeprom as eeprom_format
@@ -142,10 +142,8 @@ class Status:
 
     @classmethod
     def parse(cls, report: bytes) -> Status:
-        if report[:1] != b"\xe1" or len(report) != 222:
-            raise ProtocolError("malformed status report")
-        report = bytes(report)  # (the bytes as they are, where it is bytes already)
-        job = report[1:17].split(b"\0", 1)[0]
+        report = _status_report(report)
+        job, line, pause = Progress.of(report)
         fields = float8.parse_fields  # (compiled: one call for each run of figures)
         temperatures = {}
         for name, start in (("nozzle0", 40), ("nozzle1", 65), ("bed", 90), ("ambient", 115)):
@@ -165,11 +163,33 @@ class Status:
                           "feed_rate_multiplier": values[5]},
                     "D": {"diameter": values[2], "multiplier": values[3],
                           "feed_rate_multiplier": values[4]}}
-        return cls(job.decode("ascii", "replace") or None, int(report[17:25], 16),
-                   PAUSE_STATES.get(chr(report[25]), "?"), report[26:27] != b"0",
+        return cls(job, line, pause, report[26:27] != b"0",
                    temperatures, eeproms, report[138:139] == b"1", position,
                    int(chr(report[171])) if chr(report[171]).isdigit() else 0, filament,
                    report[220:221] == b"1", report)
+
+
+def _status_report(report: bytes) -> bytes:
+    """A status report's bytes (as bytes), once they are seen to be one."""
+    if report[:1] != b"\xe1" or len(report) != 222:
+        raise ProtocolError("malformed status report")
+    return bytes(report)  # (the bytes as they are, where it is bytes already)
+
+
+class Progress(NamedTuple):
+    """Of a status report, what following a job looks at: its job, line and pause state,
+    as Status has them, read without the rest (the temperatures, positions and the
+    like), at every poll of a print followed to its end."""
+
+    job: str | None
+    line: int
+    pause: str
+
+    @classmethod
+    def of(cls, report: bytes) -> Progress:
+        """Of a status report (checked: see _status_report)."""
+        return cls(report[1:17].split(b"\0", 1)[0].decode("ascii", "replace") or None,
+                   int(report[17:25], 16), PAUSE_STATES.get(chr(report[25]), "?"))
 
 
 def log_exchange(frame: bytes, reply: bytes) -> None:
@@ -254,6 +274,10 @@ class Printer:
 
     def status(self) -> Status:
         return Status.parse(self.transact(b"\xb0"))
+
+    def progress(self) -> Progress:
+        """The status report's job, line and pause state alone (see Progress)."""
+        return Progress.of(_status_report(self.transact(b"\xb0")))
 
     def files(self) -> list[str]:
         reply = self.transact(b"\x96")
@@ -348,7 +372,7 @@ class Printer:
         counts. A pause at one of them with no error latched that pauses a job is taken
         as the catch-up; any other pause (the user's, the job's own M1, an error) is left
         alone, and `notice` hears of it."""
-        status = self.status()
+        status = self.progress()
         why = self.paused_for(name, catch_up_lines, status)
         if why is None:
             return False
@@ -367,8 +391,8 @@ class Printer:
         self.resume()
         self.catch_up_resumes += 1
 
-    def paused_for(self, name: str, catch_up_lines: CatchUpPoints, status: Status
-                   ) -> str | int | None:
+    def paused_for(self, name: str, catch_up_lines: CatchUpPoints,
+                   status: Status | Progress) -> str | int | None:
         """Why job `name` is paused, given its `status`: "catch-up" (its reader caught
         up with the upload), the error bits that pause a job (an int, non-zero), or 0
         (the user, or the job itself); None when it is not paused."""
