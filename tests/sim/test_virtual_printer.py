@@ -233,6 +233,32 @@ def test_a_served_printer_held_for_its_host_still_answers_it():
         server.close()
 
 
+def test_a_fast_served_printer_runs_on_once_its_host_has_a_whole_reply():
+    """The look at the pty that answers a command also runs the printer on past the
+    reply (a slice of its time, while it has work), rather than looking again at once
+    for the next command, which the host cannot have written yet."""
+    import select
+
+    from robox.formats.protocol import reply_length
+    from robox.sim.serve import FAST_SLICE_S, PtyServer
+
+    server = PtyServer(VirtualPrinter(), None)
+    fw = server.printer.firmware
+    server.printer.settle()
+    try:
+        Wire(server.printer).gcode(b"M104 S200\r")  # a heater on: the printer works
+        began = fw.clock.now
+        os.write(server.slave, b"\xb3")
+        server.serve_once(timeout=1.0)
+        assert select.select([server.slave], [], [], 1.0)[0]
+        reply = os.read(server.slave, 4096)
+        assert reply[0] == 0xE3 and len(reply) == reply_length(reply)
+        assert fw.clock.now - began >= FAST_SLICE_S  # and on, in the same look
+    finally:
+        server.close()
+        server.printer.close()
+
+
 def test_sim_serve_reports_a_fault_in_the_model_on_its_console(tmp_path, monkeypatch):
     """No catch-all hides a bug: the exception's type, message and traceback go to the
     console (stderr for `sim serve`), and serving ends with a clear error."""

@@ -73,20 +73,32 @@ class PtyServer:
             self._last_input = time.monotonic()
             self._reply_owed = True
 
-    def _pump_output(self) -> None:
+    def _pump_output(self) -> bool:
+        """Hand the host what the printer sent; True when a reply went out whole."""
         usb = self.printer.usb
+        replied = False
         while usb.reply_waiting:
             self._pending_out += usb.host_read(READ_SIZE)
             self._reply_owed = False
+            replied = True
         while self._pending_out:
             try:
                 written = os.write(self.master, self._pending_out)
             except (BlockingIOError, InterruptedError):
-                return
+                return False
             except OSError:
                 self._pending_out.clear()  # nobody is listening
-                return
+                return False
             del self._pending_out[:written]
+        return replied
+
+    def _run_fast(self) -> None:
+        """Fast: run the firmware on, at most FAST_SLICE_S and never past the host's turn."""
+        fw = self.printer.firmware
+        turn = self._host_turn()
+        until = fw.clock.now + FAST_SLICE_S if turn is None else min(
+            fw.clock.now + FAST_SLICE_S, turn)
+        self.printer.run_for_host(until - fw.clock.now)
 
     def _host_turn(self) -> float | None:
         """Fast mode: the printer time at which a connected host must be heard from
@@ -107,10 +119,11 @@ class PtyServer:
         if readable:
             self._pump_input()
         if self.speed is None:
-            turn = self._host_turn()
-            until = fw.clock.now + FAST_SLICE_S if turn is None else min(
-                fw.clock.now + FAST_SLICE_S, turn)
-            self.printer.run_for_host(until - fw.clock.now)
+            self._run_fast()
+            if self._pump_output() and fw.working():
+                # the host has its reply and is writing its next command: run on
+                # meanwhile, rather than look at once for what it cannot have sent yet
+                self._run_fast()
         else:
             # whole passes only, the clock less than one behind the wall's: each pass
             # lets one packet of the host's across the bus, whatever its length
