@@ -2,6 +2,9 @@
 paused (the real firmware's behaviour): the host resumes that pause, and only that one."""
 
 import json
+import os
+import select
+import time
 
 import pytest
 from click.testing import CliRunner
@@ -9,6 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from robox.cli import cli
+from robox.formats.protocol import reply_length
+from robox.formats.sdcard import make_id
 from robox.gcode import prepare_job
 from robox.host.client import CATCH_UP_CHECK_CHUNKS, catch_up_lines
 from robox.sim.printer import VirtualPrinter
@@ -79,17 +84,104 @@ def test_a_pause_the_user_made_is_left_alone_and_reported(virtual):
 
 
 def test_send_job_wait_over_a_pty_prints_a_job_that_catches_up(tmp_path):
-    # long lines (a dozen to a chunk) that run at once: the served printer runs a line a
-    # pass, so it outruns an upload that carries so few lines per round trip on any host
+    # long lines (five to a chunk) that run at once, on a printer paced to the wall: it
+    # runs a line (about 100 bytes) a pass, where a chunk of 512 takes ten passes to
+    # cross the bus, so the print outruns the upload on any host, as a real one would
     path = tmp_path / "fast.gcode"
-    path.write_bytes(job_text([f"M106 S{i % 250}.{'0' * 36}" for i in range(3000)]))
+    path.write_bytes(job_text([f"M106 S{i % 250}.{'0' * 90}" for i in range(600)]))
+    with serving.served(tmp_path / "printer", speed=1) as pty:
+        result = CliRunner().invoke(cli, ["--device", f"serial:{pty}", "send-job", str(path),
+                                          "--wait", "--json"], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.output)
+    assert summary["lines"] == 600 and summary["errors"] == []
+    assert summary["catch_up_resumes"] >= 1  # it did catch up, and was resumed
+
+
+def test_a_run_for_a_host_stops_short_of_the_end_of_the_upload_its_job_prints(virtual):
+    """With a reader margin, the served printer's run ends while the job printing its own
+    upload still has that much of it to read; without one, the job reads to the end of
+    what is stored and pauses (the catch-up)."""
+    job = fast_job(2000)
+    printer = connect(virtual)
+    fs, seen = virtual.firmware.file_system, []
+
+    def progress(done, total):
+        if done == 512:  # the job starts with the second chunk: nothing reads it yet
+            seen.append((fs.upload_length(), fs.upload_unread()))
+        elif done == 4 * 512:
+            seen.append((fs.upload_length(), done))
+            virtual.run_for_host(5.0, reader_margin=1024)
+            seen.append((fs.upload_unread(), virtual.firmware.job.pause))
+            virtual.run_for_host(5.0)
+            seen.append((fs.upload_unread(), virtual.firmware.job.pause))
+
+    printer.send_file(job, "fast", progress=progress)
+    assert seen[0] == (-1, -1)
+    assert seen[1][0] == seen[1][1]  # stored so far: what the host has had acknowledged
+    held, free = seen[2], seen[3]
+    assert 0 <= held[0] < 1024 and held[1] == 0  # stopped short, still printing
+    assert free == (0, 1)  # read to the end of what is stored, and paused
+    assert fs.upload_length() == -1  # the upload is over
+
+
+def test_send_job_wait_on_a_fast_served_printer_is_not_caught_up_by_its_print(tmp_path):
+    # short lines (about 10 bytes) that run at once: a line a pass is slower than a chunk
+    # every ten passes, so in real time the upload stays ahead; a clock running free
+    # between the host's chunks (a second of printing at a time) would not keep it so
+    lines = 6000
+    path = tmp_path / "fast.gcode"
+    path.write_bytes(job_text([f"M106 S{i % 250}" for i in range(lines)]))
     with serving.served(tmp_path / "printer") as pty:
         result = CliRunner().invoke(cli, ["--device", f"serial:{pty}", "send-job", str(path),
                                           "--wait", "--json"], catch_exceptions=False)
     assert result.exit_code == 0, result.output
     summary = json.loads(result.output)
-    assert summary["lines"] == 3000 and summary["errors"] == []
-    assert summary["catch_up_resumes"] >= 1  # it did catch up, and was resumed
+    assert summary["lines"] == lines and summary["errors"] == []
+    assert summary["catch_up_resumes"] == 0
+
+
+def test_a_fast_served_job_catches_up_once_its_host_stops_sending(monkeypatch):
+    """The clock waits for the host's next chunk only while the upload keeps growing: a
+    host gone quiet mid-upload leaves the job to catch up and pause, as on the printer."""
+    from robox.sim import serve
+
+    monkeypatch.setattr(serve, "HOST_QUIET_S", 0.3)
+    server = serve.PtyServer(VirtualPrinter(), None)
+    fw = server.printer.firmware
+    server.printer.settle()
+
+    def ask(frame: bytes) -> bytes:
+        os.write(server.slave, frame)
+        start, out = time.monotonic(), b""
+        while reply_length(out) is None or len(out) < reply_length(out):
+            assert time.monotonic() - start < 10, f"no reply to {frame[:1]!r}"
+            server.serve_once(timeout=0.01)
+            if select.select([server.slave], [], [], 0)[0]:
+                out += os.read(server.slave, 4096)
+        return out
+
+    def serve_for(seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            server.serve_once(timeout=0.01)
+
+    job = fast_job(2000)
+    try:
+        assert ask(b"\x97" + make_id("quiet"))[0] == 0xE3
+        for sequence in range(3):
+            block = job[sequence * 512:(sequence + 1) * 512]
+            assert ask(b"\x91" + f"{sequence:08x}".encode() + block)[0] == 0xE3
+        assert ask(b"\x94" + make_id("quiet"))[0] == 0xE3
+        serve_for(0.1)  # the host has just stored a chunk: the clock waits for the next
+        assert fw.job.running and fw.job.pause == 0
+        assert 0 <= fw.file_system.upload_unread() < serve.UPLOAD_MARGIN
+        serve_for(0.5)  # the upload stopped growing 0.3 s ago: the job runs on and pauses
+        assert fw.job.running and fw.job.pause == 1
+        assert fw.file_system.upload_unread() == 0
+    finally:
+        server.close()
+        server.printer.close()
 
 
 _REPORT_JOB = st.one_of(st.just(b""), st.text("abcdefghijklmnopqrstuvwxyz0123456789_",

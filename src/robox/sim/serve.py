@@ -39,6 +39,7 @@ READ_SIZE = 4096
 FAST_SLICE_S = 1.0
 HOST_QUIET_S = 2.0
 REPLY_MARGIN_S = 0.1
+UPLOAD_MARGIN = 2 * 512  # bytes: two of an upload's chunks
 
 
 class PtyServer:
@@ -56,6 +57,8 @@ class PtyServer:
         self._pending_out = bytearray()
         self._last_input = 0.0
         self._reply_owed = False  # the host wrote and has had nothing back yet
+        self._upload_length = -1  # of an upload that a job prints as it comes
+        self._upload_grew = 0.0  # when (wall) that upload last grew
         self.start_pacing()
 
     def stop(self, *_args) -> None:
@@ -93,12 +96,41 @@ class PtyServer:
         return replied
 
     def _run_fast(self) -> None:
-        """Fast: run the firmware on, at most FAST_SLICE_S and never past the host's turn."""
+        """Fast: run the firmware on, at most FAST_SLICE_S, never past the host's turn
+        and not into the end of an upload its host is still sending (see _reader_margin)."""
         fw = self.printer.firmware
+        margin = self._reader_margin()
+        if margin and self._upload_held(margin):
+            return
         turn = self._host_turn()
         until = fw.clock.now + FAST_SLICE_S if turn is None else min(
             fw.clock.now + FAST_SLICE_S, turn)
-        self.printer.run_for_host(until - fw.clock.now)
+        self.printer.run_for_host(until - fw.clock.now, margin)
+
+    def _reader_margin(self) -> int:
+        """Fast: how close a job printing its own upload may come to the upload's end
+        while the host sending it is live (0: no limit). A real host stores a chunk far
+        sooner than the printer prints one, so the print never meets the end of what is
+        stored; a clock that runs free between the host's commands would meet it, and
+        pause the job, again and again. So the clock waits for the host's next chunk
+        instead, for as long as the upload grew within the last `HOST_QUIET_S` of wall
+        time (then the host is taken to have stopped, and the job catches up and pauses
+        as on the real printer)."""
+        written = self.printer.firmware.file_system.upload_length()
+        if written < 0:
+            self._upload_length = -1
+            return 0
+        now = time.monotonic()
+        if written != self._upload_length:
+            self._upload_length, self._upload_grew = written, now
+        return UPLOAD_MARGIN if now - self._upload_grew <= HOST_QUIET_S else 0
+
+    def _upload_held(self, margin: int) -> bool:
+        """Whether the clock waits for the host's next chunk (nothing of it on its way in,
+        and the job's reader within `margin` bytes of the upload's end)."""
+        usb = self.printer.usb
+        return not usb.arriving and not usb.received and \
+            0 <= self.printer.firmware.file_system.upload_unread() < margin
 
     def _host_turn(self) -> float | None:
         """Fast mode: the printer time at which a connected host must be heard from
@@ -152,6 +184,9 @@ class PtyServer:
         if not fw.working():
             return timeout
         if self.speed is None:
+            margin = self._reader_margin()
+            if margin and self._upload_held(margin):
+                return timeout
             turn = self._host_turn()
             return timeout if turn is not None and fw.clock.now >= turn else 0.0
         due = (fw.clock.now + PASS_S - self._paced_now()) / self.speed
