@@ -60,6 +60,24 @@ def test_send_file_resumes_the_pause_of_a_job_that_caught_up(virtual):
     assert fw.job.lines_executed >= 2000
 
 
+def test_an_upload_whose_job_prints_asks_for_the_status_every_few_chunks(virtual):
+    """While its job prints, the upload looks for a catch-up pause every
+    CATCH_UP_CHECK_CHUNKS chunks from the third on (the job starts with the second), and
+    once more after the end: one status request (0xb0) each, and no others."""
+    job = fast_job(8000)
+    chunks = len(job) // 512
+    printer = connect(virtual)
+    frames: list[bytes] = []
+    write = printer.transport.write
+    printer.transport.write = lambda frame, timeout: (frames.append(frame[:1]),
+                                                      write(frame, timeout))[1]
+    printer.send_file(job, "polled")
+    checks = [s for s in range(2, chunks) if s % CATCH_UP_CHECK_CHUNKS == 0]
+    assert len(checks) >= 2
+    assert frames.count(b"\xb0") == len(checks) + 1
+    assert frames.count(b"\x91") == chunks
+
+
 def test_a_pause_the_user_made_is_left_alone_and_reported(virtual):
     job = fast_job(3000)
     printer = connect(virtual)

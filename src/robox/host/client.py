@@ -42,8 +42,10 @@ DEFAULT_TIMEOUT_MS = 10_000
 #: -v logs each command and its reply in a line; -vv adds their bytes in hex.
 wire_log = logging.getLogger("robox.wire")
 #: While a job prints from its own upload, the status is checked every this many chunks
-#: for the pause a printer makes when its reader catches up with the writer.
-CATCH_UP_CHECK_CHUNKS = 8
+#: for the pause a printer makes when its reader catches up with the writer (16 KB: about
+#: half a second of a real printer's upload, where a catch-up's park and return take
+#: seconds; and a printer prints far slower than it stores, so the check mostly finds none).
+CATCH_UP_CHECK_CHUNKS = 32
 EEPROMS = {"head": 0, "reel0": 1, "reel1": 2}
 PAUSE_STATES = {"0": "running", "1": "pausing", "2": "paused", "3": "resuming",
                 "4": "selfie pause"}
