@@ -39,3 +39,21 @@ def test_a_command_loads_neither_the_model_nor_the_translator(args):
     loaded = loaded_after(*args)
     assert not [name for name in HEAVY if name in loaded]
     assert ("robox.cli.printer" in loaded) == (args == ("status",))
+
+
+def test_status_of_the_served_printer_loads_neither_the_model_nor_the_translator(tmp_path):
+    """The served printer's model runs in its server: a command to it finds the server by
+    its state directory and talks over the pty, without loading the model; nor does
+    `sim --help` (its module names the default state directory)."""
+    from tests.sim import serving
+
+    state = tmp_path / "printer"
+    with serving.served(state):
+        loaded = loaded_after("--device", f"sim:{state}", "status")
+        loaded_sim = loaded_after("sim", "--help")
+    assert "robox.cli.printer" in loaded and "robox.host.devices" in loaded
+    assert not [name for name in HEAVY if name in loaded]
+    assert not [name for name in HEAVY if name in loaded_sim]
+    # nor what status does not use: the upload catalogue, EEPROM fields, firmware images
+    assert not {"robox.host.catalogue", "robox.formats.eeprom", "robox.formats.firmware",
+                "hashlib"} & loaded

@@ -23,7 +23,6 @@ from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT
 from robox.formats.protocol import error_names
 from robox.formats.sdcard import default_id, make_id
-from robox.host import catalogue
 from robox.host.client import (
     DEFAULT_TIMEOUT_MS,
     EEPROMS,
@@ -136,6 +135,8 @@ def files_cmd(ctx, as_json: bool) -> None:
     The printer gives ids only: sizes, line counts and the job flag come from what this
     computer uploaded (`?` otherwise). A repeated id is listed per copy; the newest is
     the one a run by id prints."""
+    from robox.host import catalogue
+
     with device(ctx) as printer:
         listed = printer.files()
         known = catalogue.load(printer.unique_id()) if listed else {}
@@ -263,6 +264,8 @@ def _interrupted_wait(printer, name: str) -> str:
 def _upload(printer, file: str, job, file_id: str | None, resume: bool,
             wait: bool, quiet: bool, as_json: bool = False) -> dict:
     """Send the job file (a chunk at a time) and, with `wait`, follow its print."""
+    from robox.host import catalogue
+
     name = default_id(Path(file).stem, job.sha1) if file_id is None else file_id
     if len(name.encode("ascii", "replace")) > 16:
         raise UsageError(f"job id {name!r} is longer than 16 characters")
@@ -330,6 +333,8 @@ def _refuse_too_large(printer, unique: str, size: int) -> None:
     """Refuse, before its first chunk, a job larger than the printer's card can hold:
     known from a virtual printer's card image, or from an earlier upload the printer
     refused as too large (`robox.host.catalogue`)."""
+    from robox.host import catalogue
+
     largest = printer.largest_file
     if largest is None:
         with contextlib.suppress(OSError):

@@ -10,7 +10,7 @@ import click
 
 from robox.cli.common import emit_json, json_option, number_pair
 from robox.errors import UsageError
-from robox.sim.printer import default_state_dir
+from robox.sim.served import default_state_dir
 
 STATE_OPTION = click.option("--state", "state_dir", type=click.Path(file_okay=False),
                             help="State directory (default: the per-user virtual printer).")

@@ -19,9 +19,7 @@ from dataclasses import dataclass, field
 from typing import BinaryIO, NamedTuple
 
 from robox.errors import RoboxError, UsageError
-from robox.formats import eeprom as eeprom_format
 from robox.formats import float8
-from robox.formats.firmware import check_binary, to_sd_text
 from robox.formats.protocol import (
     FIXED_REPLY_LENGTH,
     PAUSE_MASK_CONNECTED,
@@ -342,6 +340,8 @@ class Printer:
     def read_eeprom_fields(self, which: str, shown: bool = False) -> dict:
         """The EEPROM's fields as the printer reads them, or with `shown` as a person
         wrote them (eeprom_format.shown_fields)."""
+        from robox.formats import eeprom as eeprom_format
+
         data = self.read_eeprom(which)
         kind = "head" if which == "head" else "reel"
         return (eeprom_format.shown_fields if shown else eeprom_format.fields_of)(kind, data)
@@ -354,6 +354,8 @@ class Printer:
                      .encode() + part, f"write {which} EEPROM")
 
     def write_eeprom_fields(self, which: str, assignments: dict[str, str]) -> None:
+        from robox.formats import eeprom as eeprom_format
+
         kind = "head" if which == "head" else "reel"
         for name, value in assignments.items():
             f = eeprom_format.field(kind, name)
@@ -514,6 +516,8 @@ class Printer:
                         reconnect: Callable[[], Printer] | None = None) -> Printer:
         """Verify locally, upload as SD text, trigger the update, wait for the printer
         to come back; returns the printer to use afterwards."""
+        from robox.formats.firmware import check_binary, to_sd_text
+
         verdict = check_binary(image)
         if not verdict.accepted:
             reasons = "; ".join(f"{c.value} ({d})" for c, d in verdict.failures)

@@ -242,7 +242,7 @@ def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000,
     spec = spec or os.environ.get(ENVIRONMENT) or "usb"
     kind, _, rest = spec.partition(":")
     if kind in ("sim", "sim-once"):
-        from robox.sim.printer import default_state_dir
+        from robox.sim.served import default_state_dir
 
         directory = Path(os.path.abspath(rest)) if rest else default_state_dir()
         if kind == "sim-once":

@@ -169,12 +169,6 @@ def write_filament(directory: Path, feeds: dict[str, dict[str, float] | None]) -
     write_atomically(path, (json.dumps(feeds, indent=1, sort_keys=True) + "\n").encode())
 
 
-def default_state_dir() -> Path:
-    base = os.environ.get("XDG_DATA_HOME") or os.path.join(os.path.expanduser("~"), ".local",
-                                                           "share")
-    return Path(base) / "robox" / "sim"
-
-
 def create_state(directory: Path) -> None:
     """Fill a state directory with a new printer (files already there are kept)."""
     directory.mkdir(parents=True, exist_ok=True)

@@ -22,11 +22,9 @@ begun afresh at each start.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import os
 import signal
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -38,14 +36,26 @@ STOP_TIMEOUT_S = 30.0
 LOG_NAME = "serve.log"
 
 
+def default_state_dir() -> Path:
+    """The per-user virtual printer's state directory (here, not with the printer, so a
+    command naming it does not load the firmware model)."""
+    base = os.environ.get("XDG_DATA_HOME") or os.path.join(os.path.expanduser("~"), ".local",
+                                                           "share")
+    return Path(base) / "robox" / "sim"
+
+
 def runtime_dir() -> Path:
     base = os.environ.get("XDG_RUNTIME_DIR")
     if base:
         return Path(base) / "robox" / "served"
+    import tempfile
+
     return Path(tempfile.gettempdir()) / f"robox-{os.getuid()}" / "served"
 
 
 def _note_path(directory: Path) -> Path:
+    import hashlib
+
     key = hashlib.sha1(str(directory).encode()).hexdigest()[:16]
     return runtime_dir() / key
 
@@ -103,8 +113,6 @@ def list_served() -> list[dict]:
 def stop_hint(directory: Path) -> str:
     """The command that switches the printer of `directory` off, as a user types it."""
     import shlex
-
-    from robox.sim.printer import default_state_dir
 
     where = "" if directory == default_state_dir() else f" --state {shlex.quote(str(directory))}"
     return f"`robox-cli sim stop{where}`"
