@@ -441,10 +441,16 @@ class Firmware:
                 chip_written()
             if usb.in_flight or self.clock.now >= end or not self.working():
                 break
-            if reader_margin > 0 and not usb.arriving and not usb.received and \
-                    0 <= self.file_system.upload_unread() < reader_margin:
+            if reader_margin > 0 and self.reader_near_upload_end(reader_margin):
                 break
         return passes
+
+    def reader_near_upload_end(self, margin: int) -> bool:
+        """A job reading its own upload has fewer than `margin` stored bytes of it left
+        to read, and nothing of the host's is on its way in (the next chunk, say)."""
+        usb = self.hw.usb
+        return not usb.arriving and not usb.received and \
+            0 <= self.file_system.upload_unread() < margin
 
     # ------------------------------------------------------------- debug
     def debug_text(self) -> str:

@@ -17,6 +17,11 @@ on their way in (crossing the bus, or landed and not yet taken): the host has
 spoken, and what it said (its next poll, say) can only arrive by the clock
 running on. A printer that does not take them (a deaf receiver) then runs on
 and, 5 s later, counts the host as gone, as the real one would.
+
+Running fast, the clock also waits for a live host's next chunk when a job printing
+that very upload comes within `UPLOAD_MARGIN` bytes of its end (see _reader_margin):
+a real host stores far faster than the printer prints, so a real print does not
+meet the end of an upload still coming in.
 """
 
 from __future__ import annotations
@@ -100,7 +105,7 @@ class PtyServer:
         and not into the end of an upload its host is still sending (see _reader_margin)."""
         fw = self.printer.firmware
         margin = self._reader_margin()
-        if margin and self._upload_held(margin):
+        if margin and fw.reader_near_upload_end(margin):
             return
         turn = self._host_turn()
         until = fw.clock.now + FAST_SLICE_S if turn is None else min(
@@ -124,13 +129,6 @@ class PtyServer:
         if written != self._upload_length:
             self._upload_length, self._upload_grew = written, now
         return UPLOAD_MARGIN if now - self._upload_grew <= HOST_QUIET_S else 0
-
-    def _upload_held(self, margin: int) -> bool:
-        """Whether the clock waits for the host's next chunk (nothing of it on its way in,
-        and the job's reader within `margin` bytes of the upload's end)."""
-        usb = self.printer.usb
-        return not usb.arriving and not usb.received and \
-            0 <= self.printer.firmware.file_system.upload_unread() < margin
 
     def _host_turn(self) -> float | None:
         """Fast mode: the printer time at which a connected host must be heard from
@@ -185,8 +183,8 @@ class PtyServer:
             return timeout
         if self.speed is None:
             margin = self._reader_margin()
-            if margin and self._upload_held(margin):
-                return timeout
+            if margin and fw.reader_near_upload_end(margin):
+                return timeout  # the clock waits for the host's next chunk
             turn = self._host_turn()
             return timeout if turn is not None and fw.clock.now >= turn else 0.0
         due = (fw.clock.now + PASS_S - self._paced_now()) / self.speed
