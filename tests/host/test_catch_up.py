@@ -2,8 +2,6 @@
 paused (the real firmware's behaviour): the host resumes that pause, and only that one."""
 
 import json
-import os
-import select
 import time
 
 import pytest
@@ -12,7 +10,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from robox.cli import cli
-from robox.formats.protocol import reply_length
 from robox.formats.sdcard import make_id
 from robox.gcode import prepare_job
 from robox.host.client import CATCH_UP_CHECK_CHUNKS, catch_up_lines
@@ -170,14 +167,7 @@ def test_a_fast_served_job_catches_up_once_its_host_stops_sending(monkeypatch):
     server.printer.settle()
 
     def ask(frame: bytes) -> bytes:
-        os.write(server.slave, frame)
-        start, out = time.monotonic(), b""
-        while reply_length(out) is None or len(out) < reply_length(out):
-            assert time.monotonic() - start < 10, f"no reply to {frame[:1]!r}"
-            server.serve_once(timeout=0.01)
-            if select.select([server.slave], [], [], 0)[0]:
-                out += os.read(server.slave, 4096)
-        return out
+        return serving.ask(server, frame)[0]
 
     def serve_for(seconds: float) -> None:
         end = time.monotonic() + seconds

@@ -1,9 +1,14 @@
 """Start `robox-cli sim serve` as a real subprocess and stop it as a user would."""
 
 import contextlib
+import os
+import select
 import signal
 import subprocess
 import sys
+import time
+
+from robox.formats.protocol import reply_length
 
 
 @contextlib.contextmanager
@@ -22,3 +27,16 @@ def served(state, speed: float | None = None, options: tuple[str, ...] = ()):
         _, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
     assert "Traceback" not in err
+
+
+def ask(server, frame: bytes) -> tuple[bytes, float]:
+    """Write `frame` to an in-process PtyServer's pty as a host does and serve until its
+    whole reply is there to read: the reply, and the wall seconds it took."""
+    os.write(server.slave, frame)
+    start, out = time.monotonic(), b""
+    while reply_length(out) is None or len(out) < reply_length(out):
+        assert time.monotonic() - start < 10, f"no reply to {frame[:1]!r}"
+        server.serve_once(timeout=0.01)
+        if select.select([server.slave], [], [], 0)[0]:
+            out += os.read(server.slave, 4096)
+    return out, time.monotonic() - start

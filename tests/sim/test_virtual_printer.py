@@ -194,23 +194,14 @@ def test_a_served_printer_held_for_its_host_still_answers_it():
     counting its host as connected. A command the host sends then is answered at once:
     the host is not left waiting until it is taken to have gone (after which the printer
     would run on without it and raise the errors a host handles, nozzle flush needed)."""
-    import select
 
-    from robox.formats.protocol import reply_length
     from robox.sim.serve import FAST_SLICE_S, HOST_QUIET_S, PtyServer
 
     server = PtyServer(VirtualPrinter(), None)
     fw = server.printer.firmware
 
     def ask(frame: bytes) -> tuple[bytes, float]:
-        os.write(server.slave, frame)
-        start, out = time.monotonic(), b""
-        while reply_length(out) is None or len(out) < reply_length(out):
-            assert time.monotonic() - start < 10, f"no reply to {frame[:1]!r}"
-            server.serve_once(timeout=0.01)
-            if select.select([server.slave], [], [], 0)[0]:
-                out += os.read(server.slave, 4096)
-        return out, time.monotonic() - start
+        return serving.ask(server, frame)
 
     try:
         assert ask(b"\xb3")[0][0] == 0xE3
