@@ -570,20 +570,19 @@ class FileSystem:
             return False
         return reader.offset >= self._length(reader.slot)
 
-    def upload_unread(self) -> int:
-        """Bytes of the upload under way that the reader open on that same file has still
-        to read; -1 when the open file (if any) is not being written."""
-        reader = self._reader
-        if reader is None or self._dir is None or not self._reading_file_being_written():
-            return -1
-        return self._write_length - reader.offset
-
     def upload_length(self) -> int:
         """Bytes stored so far of the upload under way, when the reader is open on that
         same file; else -1."""
         if self._reader is None or self._dir is None or not self._reading_file_being_written():
             return -1
         return self._write_length
+
+    def upload_unread(self) -> int:
+        """Bytes of the upload under way that the reader open on that same file has still
+        to read; -1 when the open file (if any) is not being written."""
+        length = self.upload_length()
+        reader = self._reader
+        return -1 if length < 0 or reader is None else length - reader.offset
 
     def close(self) -> None:
         self._reader = None
