@@ -25,10 +25,12 @@ again and again for a CPU second, timed beside each run it is compared with:
    virtual printer with its deposition record): lines/s and the ratio;
 4. the served printer (`robox-cli sim serve`, what `--device sim` and OctoPrint use):
    the whole path of 2. through its pseudo-terminal, beside the in-process rate, with
-   the server's CPU seconds; and a 100 KB upload over the pseudo-terminal to a printer
-   paced at 1x and 10x the wall clock, beside its transfer limit (one 64-byte packet
-   of the host's frames crosses the bus in each 1 ms pass) and beside the simulated
-   time the same upload takes in process, where the host answers at once.
+   the server's CPU seconds and each run's count of catch-up pauses the host resumed
+   (a job printed from its own upload that met the upload's end); and a 100 KB
+   upload over the pseudo-terminal to a printer paced at 1x and 10x the wall clock,
+   beside its transfer limit (one 64-byte packet of the host's frames crosses the bus
+   in each 1 ms pass) and beside the simulated time the same upload takes in process,
+   where the host answers at once.
 
 The printer has filament in its feed, up to the nozzle, as every real print has (the
 model alone: in the machine; the whole path: `sim load` in its state directory;
@@ -303,7 +305,7 @@ def served_whole_path(path: Path, loaded: bool, in_process_rate: float,
     (two processes on a shared machine move more from run to run than one)."""
     with open(path, "rb") as f:
         lines = sum(1 for _ in f)
-    walls, hosts, servers, errors = [], [], [], set()
+    walls, hosts, servers, catch_ups, errors = [], [], [], [], set()
     for _ in range(repeat):
         with tempfile.TemporaryDirectory() as tmp:
             state = fresh_state(Path(tmp), loaded)
@@ -315,7 +317,9 @@ def served_whole_path(path: Path, loaded: bool, in_process_rate: float,
                 walls.append(time.perf_counter() - start)
                 servers.append(server_cpu(pid) - server0)
         hosts.append(cpu)
-        errors.update(json.loads(out)["errors"])
+        summary = json.loads(out)
+        errors.update(summary["errors"])
+        catch_ups.append(summary["catch_up_resumes"])
     wall = statistics.median(walls)
     rate = lines / wall
     spread = (f" ({lines / max(walls) / in_process_rate:.0%}-"
@@ -324,6 +328,7 @@ def served_whole_path(path: Path, loaded: bool, in_process_rate: float,
     print(f"  served (sim serve, its pty): {wall:.2f} s wall, {rate:,.0f} lines/s, "
           f"{rate / in_process_rate:.0%} of the in-process rate{spread}; CPU: host "
           f"{statistics.median(hosts):.2f} s, server {statistics.median(servers):.2f} s; "
+          f"catch-up pauses resumed {', '.join(map(str, catch_ups))}; "
           f"errors {', '.join(sorted(errors)) or 'none'}")
 
 
