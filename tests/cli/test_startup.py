@@ -54,6 +54,36 @@ def test_status_of_the_served_printer_loads_neither_the_model_nor_the_translator
     assert "robox.cli.printer" in loaded and "robox.host.devices" in loaded
     assert not [name for name in HEAVY if name in loaded]
     assert not [name for name in HEAVY if name in loaded_sim]
-    # nor what status does not use: the upload catalogue, EEPROM fields, firmware images
+    # nor what status does not use: the upload catalogue, EEPROM fields, firmware images,
+    # the card's layout (a file's id is robox.formats.card_file), logging (nothing logs)
     assert not {"robox.host.catalogue", "robox.formats.eeprom", "robox.formats.firmware",
-                "hashlib"} & loaded
+                "hashlib", "robox.formats.sdcard", "logging"} & loaded
+
+
+WIRE_LINE = "sent 0xb0 (1 bytes), got 0xe1 (222 bytes)"
+
+
+def test_the_wire_is_logged_once_logging_is_set_up_however_late(tmp_path):
+    """Logging loads only when wanted (-v, or a program that set it up), and then the
+    exchanges are logged, even when it was set up after robox's client was loaded."""
+    from tests.sim import serving
+
+    state = tmp_path / "printer"
+    late = ("import sys\nfrom robox.host.devices import open_printer\n"
+            "with open_printer(sys.argv[1]) as printer:\n"
+            "    printer.status()\n"
+            "    assert 'logging' not in sys.modules\n"
+            "    import logging\n"
+            "    logging.basicConfig(level=logging.INFO, format='%(name)s: %(message)s')\n"
+            "    printer.status()\n")
+    with serving.served(state):
+        verbose = subprocess.run(
+            [sys.executable, "-m", "robox.cli", "-v",
+             "--device", f"sim:{state}", "status"],
+            capture_output=True, text=True, timeout=60)
+        library = subprocess.run([sys.executable, "-c", late, f"sim:{state}"],
+                                 capture_output=True, text=True, timeout=60)
+    assert verbose.returncode == 0, verbose.stderr
+    assert f"robox-cli: {WIRE_LINE}" in verbose.stderr.splitlines()
+    assert library.returncode == 0, library.stderr
+    assert library.stderr.splitlines().count(f"robox.wire: {WIRE_LINE}") == 1

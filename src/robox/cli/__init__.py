@@ -152,12 +152,16 @@ def _show_version(ctx: click.Context, _param: click.Parameter, value: bool) -> N
 def cli(ctx: click.Context, device: str | None, timeout: float, verbose: int,
         wait_lock: float) -> None:
     """Drive a CEL Robox printer, its virtual twin, and its card, EEPROM and firmware images."""
-    import logging
+    import sys
 
     from robox.locks import set_wait
 
     set_wait(wait_lock)  # one command's setting, even when called again in one process
     ctx.obj = {"device": device, "timeout": timeout}
+    if not verbose and "logging" not in sys.modules:
+        return  # no logger set up, nor one to undo: logging need not load (start-up)
+    import logging
+
     wire = logging.getLogger("robox.wire")
     wire.handlers.clear()  # one command's settings, even when called again in one process
     wire.propagate = False

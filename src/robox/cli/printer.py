@@ -20,9 +20,9 @@ from robox.cli.gcode import (
     valve_option,
 )
 from robox.errors import NotFoundError, RoboxError, UsageError
+from robox.formats.card_file import default_id, make_id
 from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT
 from robox.formats.protocol import error_names
-from robox.formats.sdcard import default_id, make_id
 from robox.host.client import (
     DEFAULT_TIMEOUT_MS,
     EEPROMS,

@@ -10,7 +10,7 @@ and do not stop every command.
 from __future__ import annotations
 
 import io
-import logging
+import sys
 import time
 from array import array
 from bisect import bisect_left
@@ -20,6 +20,7 @@ from typing import BinaryIO, NamedTuple
 
 from robox.errors import RoboxError, UsageError
 from robox.formats import float8
+from robox.formats.card_file import make_id
 from robox.formats.protocol import (
     FIXED_REPLY_LENGTH,
     PAUSE_MASK_CONNECTED,
@@ -30,15 +31,15 @@ from robox.formats.protocol import (
     is_text,
     reply_length,
 )
-from robox.formats.sdcard import make_id
 from robox.host.transport import NoReply, TransportError
 
 CHUNK = 512
 PACKET_SIZE = 64  # the printer's bulk endpoints' packet (USB full speed)
 #: How long a reply may take to begin before the printer counts as not answering.
 DEFAULT_TIMEOUT_MS = 10_000
-#: -v logs each command and its reply in a line; -vv adds their bytes in hex.
-wire_log = logging.getLogger("robox.wire")
+#: The "robox.wire" logger (-v logs each command and its reply in a line; -vv adds
+#: their bytes in hex), once `wire_logger` has found logging in use.
+_wire_log = None
 #: While a job prints from its own upload, the status is checked every this many chunks
 #: for the pause a printer makes when its reader catches up with the writer (16 KB: about
 #: half a second of a real printer's upload, where a catch-up's park and return take
@@ -192,7 +193,17 @@ class Progress(NamedTuple):
                    int(report[17:25], 16), PAUSE_STATES.get(chr(report[25]), "?"))
 
 
-def log_exchange(frame: bytes, reply: bytes) -> None:
+def wire_logger():
+    """The "robox.wire" logger, or None while no part of the program has imported
+    logging: a logger can only be set up through it, so until then there is nothing to
+    log to, and a command that does not log need not load it."""
+    global _wire_log
+    if _wire_log is None and "logging" in sys.modules:
+        _wire_log = sys.modules["logging"].getLogger("robox.wire")
+    return _wire_log
+
+
+def log_exchange(wire_log, frame: bytes, reply: bytes) -> None:
     wire_log.info("sent %#04x (%d bytes), got %#04x (%d bytes)", frame[0], len(frame),
                   reply[0], len(reply))
     wire_log.debug("  > %s", frame.hex(" "))
@@ -248,8 +259,9 @@ class Printer:
                     # the rest in one read of whole packets: the reply's last packet, a
                     # short one or the one that fills the buffer, ends the transfer
                     want = -(-(length - len(reply)) // PACKET_SIZE) * PACKET_SIZE
-            if wire_log.isEnabledFor(logging.INFO):
-                log_exchange(frame, reply)
+            wire_log = _wire_log or wire_logger()
+            if wire_log is not None and wire_log.isEnabledFor(20):  # logging.INFO
+                log_exchange(wire_log, frame, reply)
             if reply[0] != expected or len(reply) != length:
                 raise ProtocolError(f"asked {frame[0]:#04x}, got a {reply[0]:#04x} report")
             return reply

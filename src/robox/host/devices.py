@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from robox.errors import RoboxError, UsageError
-from robox.formats.sdcard import BLOCK_SIZE
+from robox.formats.card_file import BLOCK_SIZE
 from robox.host.client import DEFAULT_TIMEOUT_MS, Printer
 from robox.host.transport import (
     PRODUCT_ID,
