@@ -55,9 +55,10 @@ def test_status_of_the_served_printer_loads_neither_the_model_nor_the_translator
     assert not [name for name in HEAVY if name in loaded]
     assert not [name for name in HEAVY if name in loaded_sim]
     # nor what status does not use: the upload catalogue, EEPROM fields, firmware images,
-    # the card's layout (a file's id is robox.formats.card_file), logging (nothing logs)
+    # the card's layout (a file's id is robox.formats.card_file), logging (nothing logs),
+    # the offline translating commands (their options are robox.cli.job_options)
     assert not {"robox.host.catalogue", "robox.formats.eeprom", "robox.formats.firmware",
-                "hashlib", "robox.formats.sdcard", "logging"} & loaded
+                "hashlib", "robox.formats.sdcard", "logging", "robox.cli.gcode"} & loaded
 
 
 WIRE_LINE = "sent 0xb0 (1 bytes), got 0xe1 (222 bytes)"

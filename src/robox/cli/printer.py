@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 
 from robox.cli.common import Interrupted, Ticker, confirm, emit_json, json_option, yes_option
-from robox.cli.gcode import (
+from robox.cli.job_options import (
     ejection_option,
     macros_option,
     nozzle_option,

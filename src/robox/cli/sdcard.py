@@ -17,7 +17,7 @@ from robox.cli.common import (
     json_option,
     yes_option,
 )
-from robox.cli.gcode import (
+from robox.cli.job_options import (
     ejection_option,
     macros_option,
     nozzle_option,
