@@ -24,10 +24,11 @@ again and again for a CPU second, timed beside each run it is compared with:
 3. `robox-cli simulate FILE --json` on the same files (translated, printed on a fresh
    virtual printer with its deposition record): lines/s and the ratio;
 4. the served printer (`robox-cli sim serve`, what `--device sim` and OctoPrint use):
-   the whole path of 2. through its pseudo-terminal, beside the in-process rate, with
+   the whole path of 2. through the way in robox-cli takes (its Unix socket, or its
+   pseudo-terminal where it has none), beside the in-process rate, with
    the server's CPU seconds and each run's count of catch-up pauses the host resumed
    (a job printed from its own upload that met the upload's end); and a 100 KB
-   upload over the pseudo-terminal to a printer paced at 1x and 10x the wall clock,
+   upload the same way to a printer paced at 1x and 10x the wall clock,
    beside its transfer limit (one 64-byte packet of the host's frames crosses the bus
    in each 1 ms pass) and beside the simulated time the same upload takes in process,
    where the host answers at once.
@@ -41,7 +42,7 @@ own, or the child's) and simulated time over each.
 The whole path, simulate and the served figures (2. to 4.) run `--repeat` times
 (default 3), each on a fresh state: their figures are the medians, and the ratio's
 range over the runs is given beside it, since a run of a few seconds moves with
-whatever else the machine does (two processes talking over a pty, more so).
+whatever else the machine does (two processes talking to each other, more so).
 
 Asserts nothing.
 """
@@ -325,7 +326,7 @@ def served_whole_path(path: Path, loaded: bool, in_process_rate: float,
     spread = (f" ({lines / max(walls) / in_process_rate:.0%}-"
               f"{lines / min(walls) / in_process_rate:.0%} over {repeat} runs)"
               if repeat > 1 else "")
-    print(f"  served (sim serve, its pty): {wall:.2f} s wall, {rate:,.0f} lines/s, "
+    print(f"  served (sim serve, robox-cli's way in): {wall:.2f} s wall, {rate:,.0f} lines/s, "
           f"{rate / in_process_rate:.0%} of the in-process rate{spread}; CPU: host "
           f"{statistics.median(hosts):.2f} s, server {statistics.median(servers):.2f} s; "
           f"catch-up pauses resumed {', '.join(map(str, catch_ups))}; "
@@ -351,7 +352,7 @@ def bus_packets(data: bytes) -> int:
 
 
 def served_upload(speeds: tuple[float, ...], repeat: int, size: int = 100_000) -> None:
-    """An upload (stored, not printed) over a served printer's pty, paced; at each speed
+    """An upload (stored, not printed) to a served printer, paced; at each speed
     `repeat` times, each to a fresh printer: the median wall time and its range."""
     from robox.host.devices import open_printer
     from robox.sim.printer import create_state

@@ -82,7 +82,7 @@ def test_sim_starts_a_printer_that_stays_on_across_commands(state, tmp_path):
     assert shown.exit_code == 0
     assert json.loads(shown.stdout) | {"started": None} == {
         "state": str(state), "served": True, "pid": record["pid"], "pty": record["pty"],
-        "started": None, "speed": None}
+        "link": str(state / "link.sock"), "started": None, "speed": None}
     # listed with the unique ID and firmware the printer itself answers (0xb2, 0xb4)
     with open_printer(f"sim:{state}") as printer:
         unique, revision = printer.unique_id(), printer.revision()

@@ -137,7 +137,7 @@ def status_cmd(state_dir: str | None, as_json: bool) -> None:
     record = served.served_record(directory)
     data = {"state": str(directory), "served": record is not None}
     if record is not None:
-        data.update(pid=record.get("pid"), pty=record.get("pty"),
+        data.update(pid=record.get("pid"), pty=record.get("pty"), link=record.get("link"),
                     started=record.get("started"), speed=record.get("speed"))
     if as_json:
         emit_json(data)

@@ -30,6 +30,7 @@ from robox.host.transport import (
     VENDOR_ID,
     PermissionDenied,
     SerialTransport,
+    SocketTransport,
     TransportError,
     UsbTransport,
     permission_hint,
@@ -194,13 +195,26 @@ def _served(directory: Path, timeout_ms: int, announce=None, take_over: bool = F
     from robox.sim import served
 
     record = served.ensure(directory, announce)
-    printer = _connect(SerialTransport(record["pty"]), timeout_ms,
+    printer = _connect(_served_transport(record), timeout_ms,
                        served_idle(record.get("speed")), take_over)
     printer.served = record
     with contextlib.suppress(OSError):  # its card's size, from its image's
         printer.largest_file = largest_file(
             (directory / "sdcard.img").stat().st_size // 1024 * 2)
     return printer
+
+
+def _served_transport(record: dict):
+    """The way in to a served printer: its Unix socket where it has one, else its pty
+    (a printer served by an older robox, or in a directory whose path is too long for a
+    socket's address)."""
+    link = record.get("link")
+    if link:
+        try:
+            return SocketTransport(link, record["pty"], spin=record.get("speed") is None)
+        except TransportError:
+            pass  # (the lock is not the trouble: that refusal is InUse, and stands)
+    return SerialTransport(record["pty"])
 
 
 def largest_file(capacity_blocks: int) -> int:

@@ -1,5 +1,6 @@
 """Byte transports to a printer: USB through pyusb (a real Robox, or the virtual one through
-its pyusb backend), and serial through pyserial (/dev/ttyACM*, or a virtual printer's pty).
+its pyusb backend), serial through pyserial (/dev/ttyACM*, or a virtual printer's pty),
+and a served virtual printer's Unix socket (robox.sim.serve).
 
 Both read and write raw bytes; framing and stop-and-wait live in the client.
 Failures become robox.errors types a user can act on.
@@ -10,6 +11,7 @@ from __future__ import annotations
 import errno
 import os
 import select
+import socket
 import time
 from array import array
 from pathlib import Path
@@ -232,7 +234,7 @@ class SerialTransport(_PortLock):
                 self.port.write(data)
                 self.port.flush()
                 return
-            self._write_all(self._fd, memoryview(data))
+            _write_all(self._fd, memoryview(data), self.WRITE_TIMEOUT_S)
             _tcdrain(self._fd)
         except (self._serial.SerialException, OSError, *_TTY_ERRORS):
             # (the drain is termios.tcdrain, whose error is no OSError: a port gone
@@ -240,33 +242,13 @@ class SerialTransport(_PortLock):
             # server's pty, fails there with EIO)
             raise Disconnected("the printer was disconnected") from None
 
-    def _write_all(self, fd: int, view: memoryview) -> None:
-        end = time.monotonic() + self.WRITE_TIMEOUT_S
-        while view:
-            try:
-                done = os.write(fd, view)
-            except BlockingIOError:
-                done = 0
-            if done:
-                view = view[done:]
-                continue
-            left = end - time.monotonic()
-            if left <= 0.0 or not select.select([], [fd], [], left)[1]:
-                raise OSError(errno.ETIMEDOUT, "the port took nothing")
-
     def read(self, limit: int, timeout_ms: int = 5000) -> bytes:
+        if self._fd is not None:
+            return _read_some(self._fd, limit, timeout_ms)
         end = time.monotonic() + timeout_ms / 1000.0
-        fd = self._fd
         while True:
             try:
-                if fd is None:
-                    data = self.port.read(min(limit, max(1, self.port.in_waiting)))
-                elif select.select([fd], [], [], max(0.0, end - time.monotonic()))[0]:
-                    data = os.read(fd, limit)
-                    if not data:  # readable, and nothing to read: the other end hung up
-                        raise OSError(errno.EIO, "the port hung up")
-                else:
-                    data = b""
+                data = self.port.read(min(limit, max(1, self.port.in_waiting)))
             except (self._serial.SerialException, OSError):
                 raise Disconnected("the printer was disconnected") from None
             if data:
@@ -279,3 +261,122 @@ class SerialTransport(_PortLock):
             self.port.close()
         finally:
             self._unlock()
+
+
+class SocketTransport(_PortLock):
+    """A served virtual printer through its Unix socket (robox.sim.serve): the bytes its
+    pty carries, without the tty layer. The pty `port` is locked as SerialTransport
+    locks it (the lock file first, then the open port's own lock, for programs that
+    lock the device), so the printer has one host whichever way in it uses.
+
+    A read first looks for the reply again and again for up to SPIN_S, and only then
+    sleeps in select(), where another processor can run the printer meanwhile: a served
+    printer answers most commands within that, and waking a sleeping reader costs more
+    than the wait (the kernel's wakeup, and on a virtual machine an interrupt between
+    processors). On one processor the printer needs this one's time, so it sleeps at
+    once; so it does with `spin` False (a printer paced to the wall clock, whose replies
+    take the printer's own time)."""
+
+    WRITE_TIMEOUT_S = SerialTransport.WRITE_TIMEOUT_S
+    SPIN_S = 0.0005
+
+    def __init__(self, path: str, port: str, spin: bool = True):
+        self._lock = port_lock(port)
+        self._port_fd: int | None = None
+        self._socket: socket.socket | None = None
+        try:
+            try:
+                self._port_fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK
+                                        | os.O_CLOEXEC)
+            except OSError as exc:
+                raise TransportError(f"{port}: cannot open: {exc.strerror}") from None
+            lock_port(self._port_fd, port)
+            self._socket = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            self._socket.settimeout(self.WRITE_TIMEOUT_S)  # (a server that never takes it)
+            try:
+                self._socket.connect(path)
+            except OSError as exc:
+                raise TransportError(f"{path}: cannot connect: {exc.strerror}") from None
+            self._socket.setblocking(False)
+            self._fd = self._socket.fileno()
+        except BaseException:
+            self.close()
+            raise
+        self._spin = self.SPIN_S if spin and _processors() > 1 else 0.0
+
+    def write(self, data: bytes, timeout_ms: int = 5000) -> None:
+        try:
+            _write_all(self._fd, memoryview(data), self.WRITE_TIMEOUT_S)
+        except OSError:
+            raise Disconnected("the printer was disconnected") from None
+
+    def read(self, limit: int, timeout_ms: int = 5000) -> bytes:
+        if self._spin:
+            fd = self._fd
+            end = time.perf_counter() + self._spin
+            while True:
+                try:
+                    data = os.read(fd, limit)
+                except BlockingIOError:
+                    if time.perf_counter() < end:
+                        continue
+                    break
+                except OSError:
+                    raise Disconnected("the printer was disconnected") from None
+                if not data:
+                    raise Disconnected("the printer was disconnected")
+                return data
+        return _read_some(self._fd, limit, timeout_ms)
+
+    def close(self) -> None:
+        try:
+            if self._socket is not None:
+                self._socket.close()
+                self._socket = None
+            if self._port_fd is not None:
+                os.close(self._port_fd)
+                self._port_fd = None
+        finally:
+            self._unlock()
+
+
+def _processors() -> int:
+    """How many processors this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # (a system without affinities)
+        return os.cpu_count() or 1
+
+
+def _write_all(fd: int, view: memoryview, timeout_s: float) -> None:
+    """Write all of `view` to the non-blocking `fd`, waiting up to `timeout_s` each time
+    it takes nothing."""
+    end = time.monotonic() + timeout_s
+    while view:
+        try:
+            done = os.write(fd, view)
+        except BlockingIOError:
+            done = 0
+        if done:
+            view = view[done:]
+            continue
+        left = end - time.monotonic()
+        if left <= 0.0 or not select.select([], [fd], [], left)[1]:
+            raise OSError(errno.ETIMEDOUT, "the port took nothing")
+
+
+def _read_some(fd: int, limit: int, timeout_ms: int) -> bytes:
+    """What the non-blocking `fd` has, once it has something (at most `limit` bytes);
+    NoReply when nothing came within `timeout_ms`, Disconnected when its other end went."""
+    end = time.monotonic() + timeout_ms / 1000.0
+    while True:
+        try:
+            if select.select([fd], [], [], max(0.0, end - time.monotonic()))[0]:
+                data = os.read(fd, limit)
+                if not data:  # readable, and nothing to read: the other end hung up
+                    raise OSError(errno.EIO, "the port hung up")
+                return data
+        except OSError:
+            raise Disconnected("the printer was disconnected") from None
+        if time.monotonic() >= end:
+            raise NoReply("the printer did not answer")

@@ -22,13 +22,29 @@ Running fast, the clock also waits for a live host's next chunk when a job print
 that very upload comes within `UPLOAD_MARGIN` bytes of its end (see _reader_margin):
 a real host stores far faster than the printer prints, so a real print does not
 meet the end of an upload still coming in.
+
+Beside the pty the printer listens on a Unix socket in its state directory (`LINK_NAME`,
+its path in the lock record as "link"): the same byte stream as the pty's, one host
+at a time, for robox-cli's own commands (`--device sim`), without the tty layer's
+work on every round trip (its input flush on each look, its drain on each write).
+While a host is connected there the printer's replies go to it, and what arrives on
+the pty is still taken in, as from a second program on one serial port: the port's
+lock (robox.locks.port_lock on the pty), which that host holds, keeps robox-cli's
+programs from doing that. A host that connects takes the link over from one before
+it (gone, whose lock it now holds): bytes still owed to the old one are dropped, as
+a tty drops what an earlier holder left unread. Running fast, for `HOST_SPIN_S` after
+handing that host a whole reply the server looks for its next command without
+sleeping (see _look), as the host looks for its replies (SocketTransport): a round
+trip then wakes neither.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import signal
+import socket
 import sys
 import time
 import traceback
@@ -45,11 +61,31 @@ FAST_SLICE_S = 1.0
 HOST_QUIET_S = 2.0
 REPLY_MARGIN_S = 0.1
 UPLOAD_MARGIN = 2 * 512  # bytes: two of an upload's chunks
+HOST_SPIN_S = 0.0005
+LINK_NAME = "link.sock"
+
+
+def listen(path: str) -> socket.socket | None:
+    """A listening Unix socket at `path` (a stale one there is replaced), or None where
+    none can be made (a path too long for a socket's address, a file system without
+    sockets): the pty alone then serves."""
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(path)
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        listener.bind(path)
+        os.chmod(path, 0o600)
+        listener.listen(2)
+    except OSError:
+        listener.close()
+        return None
+    listener.setblocking(False)
+    return listener
 
 
 class PtyServer:
     def __init__(self, printer: VirtualPrinter, speed: float | None = None,
-                 console=None):
+                 console=None, link: str | None = None):
         self.printer = printer
         self.console = console  # where the printer's own notices go (sim serve: stderr)
         self._events_seen = 0
@@ -58,10 +94,15 @@ class PtyServer:
         tty.setraw(self.slave)
         os.set_blocking(self.master, False)
         self.path = os.ttyname(self.slave)
+        #: the Unix socket hosts may connect to instead (None: the pty alone)
+        self.listener = listen(link) if link else None
+        self.link = link if self.listener is not None else None
+        self.host: socket.socket | None = None  # the host connected there
         self.stopping = False
         self._pending_out = bytearray()
         self._last_input = 0.0
         self._reply_owed = False  # the host wrote and has had nothing back yet
+        self._answered = 0.0  # when (wall) the host last had a whole reply
         self._upload_length = -1  # of an upload that a job prints as it comes
         self._upload_grew = 0.0  # when (wall) that upload last grew
         self.start_pacing()
@@ -69,17 +110,40 @@ class PtyServer:
     def stop(self, *_args) -> None:
         self.stopping = True
 
-    def _pump_input(self) -> None:
+    def _pump_input(self, fd: int) -> None:
         try:
-            data = os.read(self.master, READ_SIZE)
+            data = os.read(fd, READ_SIZE)
         except (BlockingIOError, InterruptedError):
             return
         except OSError:
+            data = b""
+        if not data:
+            if self.host is not None and fd == self.host.fileno():
+                self._hang_up()  # the host at the socket went
             return
-        if data:
-            self.printer.usb.host_write(data)
-            self._last_input = time.monotonic()
-            self._reply_owed = True
+        self.printer.usb.host_write(data)
+        self._last_input = time.monotonic()
+        self._reply_owed = True
+
+    def _accept(self) -> None:
+        """A host connects at the socket: it takes the link over (see the docstring)."""
+        if self.listener is None:
+            return
+        try:
+            host, _ = self.listener.accept()
+        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+            return
+        except OSError:
+            return
+        host.setblocking(False)
+        self._hang_up()
+        self.host = host
+
+    def _hang_up(self) -> None:
+        if self.host is not None:
+            self.host.close()
+            self.host = None
+            self._pending_out.clear()
 
     def _pump_output(self) -> bool:
         """Hand the host what the printer sent; True when a reply went out whole."""
@@ -89,15 +153,20 @@ class PtyServer:
             self._pending_out += usb.host_read(READ_SIZE)
             self._reply_owed = False
             replied = True
+        fd = self.master if self.host is None else self.host.fileno()
         while self._pending_out:
             try:
-                written = os.write(self.master, self._pending_out)
+                written = os.write(fd, self._pending_out)
             except (BlockingIOError, InterruptedError):
                 return False
             except OSError:
                 self._pending_out.clear()  # nobody is listening
+                if fd != self.master:
+                    self._hang_up()
                 return False
             del self._pending_out[:written]
+        if replied:
+            self._answered = time.monotonic()
         return replied
 
     def _run_fast(self) -> None:
@@ -145,9 +214,17 @@ class PtyServer:
     def serve_once(self, timeout: float = 0.05) -> None:
         """Wait for the host (at most `timeout` s), then run the firmware."""
         fw = self.printer.firmware
-        readable, _, _ = select.select([self.master], [], [], self._wait(timeout))
-        if readable:
-            self._pump_input()
+        watched: list = [self.master]
+        if self.listener is not None:
+            watched.append(self.listener)
+            if self.host is not None:
+                watched.append(self.host)
+        readable = self._look(watched, self._wait(timeout))
+        for source in readable:
+            if source is self.listener:
+                self._accept()
+            else:
+                self._pump_input(source if isinstance(source, int) else source.fileno())
         if self.speed is None:
             self._run_fast()
             if self._pump_output() and fw.working():
@@ -164,6 +241,21 @@ class PtyServer:
                     self._pump_output()
         self._pump_output()
         self._tell_console()
+
+    def _look(self, watched: list, wait: float) -> list:
+        """select() on `watched` for up to `wait` s. Fast, with a host at the socket that
+        had a whole reply less than HOST_SPIN_S ago, it looks again and again first, up
+        to then: that host's next command is likely on its way, and sleeping until it
+        comes costs a wakeup (see SocketTransport, which looks for its replies so)."""
+        if wait > 0.0 and self.host is not None and self.speed is None:
+            end = self._answered + HOST_SPIN_S
+            if end > time.monotonic():
+                end = min(end, time.monotonic() + wait)
+                while True:
+                    readable = select.select(watched, [], [], 0)[0]
+                    if readable or time.monotonic() >= end:
+                        return readable
+        return select.select(watched, [], [], wait)[0]
 
     def start_pacing(self) -> None:
         """Paced: the printer's time and the wall's run on together from now."""
@@ -207,6 +299,12 @@ class PtyServer:
             self.serve_once()
 
     def close(self) -> None:
+        self._hang_up()
+        if self.listener is not None:
+            self.listener.close()
+            if self.link is not None:
+                with contextlib.suppress(OSError):
+                    os.unlink(self.link)
         os.close(self.master)
         os.close(self.slave)
 
@@ -220,7 +318,7 @@ def serve_forever(state_dir, speed: float | None, announce, console=None) -> Non
     state_dir = os.path.abspath(state_dir)
     printer = VirtualPrinter(state_dir, role="serve")
     try:
-        server = PtyServer(printer, speed, console)
+        server = PtyServer(printer, speed, console, os.path.join(state_dir, LINK_NAME))
     except BaseException:
         printer.close()
         raise
@@ -230,7 +328,8 @@ def serve_forever(state_dir, speed: float | None, announce, console=None) -> Non
         # power-up: the EEPROMs load before a host is told where to connect, as for a
         # printer in this process (sim-once); a host asking at once sees them read
         printer.settle()
-        printer.lock.update(pty=server.path, started=round(time.time(), 3), speed=speed)
+        printer.lock.update(pty=server.path, link=server.link,
+                            started=round(time.time(), 3), speed=speed)
         served.add_note(printer.state_dir)
         announce(server.path)
         server.serve()
