@@ -349,8 +349,8 @@ def _processors() -> int:
 
 
 def _write_all(fd: int, view: memoryview, timeout_s: float) -> None:
-    """Write all of `view` to the non-blocking `fd`, waiting up to `timeout_s` each time
-    it takes nothing."""
+    """Write all of `view` to the non-blocking `fd`, waiting at most `timeout_s` in all
+    while it takes nothing (then OSError ETIMEDOUT)."""
     end = time.monotonic() + timeout_s
     while view:
         try:

@@ -131,9 +131,7 @@ class PtyServer:
             return
         try:
             host, _ = self.listener.accept()
-        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
-            return
-        except OSError:
+        except OSError:  # (gone again before it was taken, or nothing there after all)
             return
         host.setblocking(False)
         self._hang_up()
