@@ -56,9 +56,12 @@ def test_status_of_the_served_printer_loads_neither_the_model_nor_the_translator
     assert not [name for name in HEAVY if name in loaded_sim]
     # nor what status does not use: the upload catalogue, EEPROM fields, firmware images,
     # the card's layout (a file's id is robox.formats.card_file), logging (nothing logs),
-    # the offline translating commands (their options are robox.cli.job_options)
+    # the offline translating commands (their options are robox.cli.job_options), and
+    # neither pyserial (the printer is reached at its socket) nor the socket module's
+    # enums (the socket is made by _socket)
     assert not {"robox.host.catalogue", "robox.formats.eeprom", "robox.formats.firmware",
-                "hashlib", "robox.formats.sdcard", "logging", "robox.cli.gcode"} & loaded
+                "hashlib", "robox.formats.sdcard", "logging", "robox.cli.gcode", "serial",
+                "socket"} & loaded
 
 
 WIRE_LINE = "sent 0xb0 (1 bytes), got 0xe1 (222 bytes)"

@@ -11,7 +11,6 @@ from __future__ import annotations
 import errno
 import os
 import select
-import socket
 import time
 from array import array
 from pathlib import Path
@@ -27,6 +26,12 @@ try:
 except ImportError:  # pragma: no cover - a system without termios (Windows)
     _TTY_ERRORS = ()
     _tcdrain = None
+
+try:  # the C module: `socket` itself makes enums of every constant, some 4 ms of each
+    # command's start, for the one socket a served printer's host opens
+    import _socket as sockets
+except ImportError:  # pragma: no cover - an interpreter without it
+    import socket as sockets  # type: ignore[no-redef]
 
 VENDOR_ID = 0x16D0
 PRODUCT_ID = 0x081B
@@ -283,7 +288,7 @@ class SocketTransport(_PortLock):
     def __init__(self, path: str, port: str, spin: bool = True):
         self._lock = port_lock(port)
         self._port_fd: int | None = None
-        self._socket: socket.socket | None = None
+        self._socket: sockets.socket | None = None
         try:
             try:
                 self._port_fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK
@@ -291,7 +296,7 @@ class SocketTransport(_PortLock):
             except OSError as exc:
                 raise TransportError(f"{port}: cannot open: {exc.strerror}") from None
             lock_port(self._port_fd, port)
-            self._socket = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            self._socket = sockets.socket(sockets.AF_UNIX, sockets.SOCK_STREAM)
             self._socket.settimeout(self.WRITE_TIMEOUT_S)  # (a server that never takes it)
             try:
                 self._socket.connect(path)
