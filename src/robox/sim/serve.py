@@ -26,7 +26,8 @@ meet the end of an upload still coming in.
 Beside the pty the printer listens on a Unix socket in its state directory (`LINK_NAME`,
 its path in the lock record as "link"): the same byte stream as the pty's, one host
 at a time, for robox-cli's own commands (`--device sim`), without the tty layer's
-work on every round trip (its input flush on each look, its drain on each write).
+work on every round trip (a kernel work item for each write's buffer, and the flush
+of pending ones on each look).
 While a host is connected there the printer's replies go to it, and what arrives on
 the pty is still taken in, as from a second program on one serial port: the port's
 lock (robox.locks.port_lock on the pty), which that host holds, keeps robox-cli's
