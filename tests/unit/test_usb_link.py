@@ -22,3 +22,14 @@ def test_a_gone_link_ends_only_the_wait_that_asks_for_it():
     assert not ReplyWaiting(link)()
     link.connect()
     assert not ReplyWaiting(link, or_gone=True)()
+
+
+def test_each_time_the_link_goes_down_is_counted_once():
+    link = UsbLink()
+    link.host_write(b"\x91abc")
+    link.disconnect()
+    link.disconnect()  # (already down: the same time)
+    assert link.downs == 1 and not link.arriving
+    link.connect()
+    link.disconnect()
+    assert link.downs == 2

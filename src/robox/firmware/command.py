@@ -17,7 +17,15 @@ What follows from the firmware's handling, and a host can see:
   is answered with its response and `ok`; a NUL byte ends the text, so a line
   holding one never completes.
 - A full buffer with nothing complete in it is never read from again: the
-  printer is deaf until reset (`deaf` is set and an event recorded).
+  printer is deaf until reset (`deaf` is set and an event recorded), or until the
+  USB link goes down and comes back.
+- Once the link has been down (a cable pulled, a host's port reset), whatever the
+  buffer held is dropped and the read armed afresh for the whole buffer: a command
+  that was half there when the link went does not swallow the next host's bytes.
+  (maintain_commands() clears its counts on every pass the link is not connected,
+  and arms a new read when it is configured again; the endpoints' reset calls no
+  transfer callback, so no error is flagged.) A line running here runs to its end
+  first, as it runs inside that call.
 - A line that runs here (a Pronterface line, or a reporting 0x95) runs to its
   end before anything else is read, and the job engine waits meanwhile, as on
   the printer where the line runs inside this call.
@@ -142,7 +150,9 @@ class Command:
         self.line_reply: Callable[[bytes], None] = _no_reply  # how its response is sent
         self.waiting: Wait | None = None
         self.deaf = False
-        self.fw.hw.usb.arm(RECEIVE_BUFFER)  # the read armed afresh, for the whole buffer
+        link = self.fw.hw.usb
+        self.downs_seen = link.downs  # the link's disconnects this object has seen
+        link.arm(RECEIVE_BUFFER)  # the read armed afresh, for the whole buffer
 
     # ------------------------------------------------------------ errors
     @property
@@ -173,6 +183,11 @@ class Command:
             self._handle()
             self._arm(link)
             return
+        if link.downs != self.downs_seen:  # the link has been down since the last look
+            self.downs_seen = link.downs
+            self.buffer = b""
+            self.deaf = False
+            link.arm(RECEIVE_BUFFER)
         if self.deaf or not link.received:
             return
         self.buffer += link.device_take(RECEIVE_BUFFER - len(self.buffer))
@@ -198,7 +213,8 @@ class Command:
         completes the Robox command at its head, and short of filling the buffer. 0 when
         the next byte may act: a text line (any byte may end it), a line running here,
         an unknown code, a header not yet whole."""
-        if self.deaf or self.line is not None or self.pending_after_reply is not None:
+        if self.deaf or self.line is not None or self.pending_after_reply is not None \
+                or self.fw.hw.usb.downs != self.downs_seen:  # (the next pass drops it all)
             return 0
         have = len(self.buffer)
         buf = self.buffer

@@ -15,7 +15,8 @@ Replies queue for the host in the order they were sent: the recordings of the re
 firmware show every reply of a burst arriving (thirty Pronterface `ok`s from one
 chunk of text, say) and USB_TX never set, so a reply is never clobbered here. A
 reply counts as "in flight" until the host has read it (a reset waits for that). A
-disconnect drops everything in both directions.
+disconnect drops everything in both directions, and is counted (`downs`): the firmware
+drops what its receiver held when it sees the link has been down (Command.maintain).
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ class UsbLink:
         self.replies = 0
         self.bytes_in = 0
         self.bytes_out = 0
+        self.downs = 0  # disconnects so far
 
     # ----------------------------------------------------------- host side
     def host_write(self, data: bytes) -> None:
@@ -63,6 +65,8 @@ class UsbLink:
         return len(self._tx)
 
     def disconnect(self) -> None:
+        if self.connected:
+            self.downs += 1
         self.connected = False
         self._rx = self._host = self._tx = b""
 
