@@ -58,10 +58,11 @@ def test_status_of_the_served_printer_loads_neither_the_model_nor_the_translator
     # the card's layout (a file's id is robox.formats.card_file), logging (nothing logs),
     # the offline translating commands (their options are robox.cli.job_options), and
     # neither pyserial (the printer is reached at its socket) nor the socket module's
-    # enums (the socket is made by _socket)
+    # enums (the socket is made by _socket); nor the heads' table (send-job's
+    # translation options) nor shlex (the hint after an interrupted upload)
     assert not {"robox.host.catalogue", "robox.formats.eeprom", "robox.formats.firmware",
                 "hashlib", "robox.formats.sdcard", "logging", "robox.cli.gcode", "serial",
-                "socket"} & loaded
+                "socket", "robox.formats.heads", "shlex"} & loaded
 
 
 WIRE_LINE = "sent 0xb0 (1 bytes), got 0xe1 (222 bytes)"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import shlex
 import sys
 import time
 from dataclasses import asdict
@@ -21,7 +20,6 @@ from robox.cli.job_options import (
 )
 from robox.errors import NotFoundError, RoboxError, UsageError
 from robox.formats.card_file import default_id, make_id
-from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT
 from robox.formats.protocol import error_names
 from robox.host.client import (
     DEFAULT_TIMEOUT_MS,
@@ -244,6 +242,8 @@ def _minutes(seconds: float) -> str:
 
 
 def _interrupted_upload(printer, file: str, done: int, size: int) -> str:
+    import shlex
+
     said = f"interrupted after {done} of {size} bytes of the upload"
     if getattr(printer, "virtual", None) is not None:
         return (f"{said}; this printer runs in this command only (--device sim-once) and "
@@ -349,6 +349,7 @@ def printer_options(printer, filament_diameter: float | None, nozzle: int | None
                     ejection: tuple[float, ...] | None = None):
     """Translation options (robox.gcode.Options) from the printer's head and reels, and
     the user's."""
+    from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT
     from robox.gcode import Options
 
     eeproms = printer.status().eeproms
