@@ -3,10 +3,19 @@
 A Ctrl-C while Python is still importing the command line's modules would otherwise
 end in a traceback, and output cut short by a closed pipe (`robox-cli status | head
 -1`) in "Broken pipe": both end quietly here, as a shell tool's do.
+
+The cyclic garbage collector is off while the command line and the command's module
+are imported. Once the command's module is loaded (robox.cli calls start_up_over), what
+the imports made is frozen (gc.freeze: the collector never looks at it again) and the
+collector is turned back on for the command. The modules' classes, functions and
+tables live as long as the process, yet the collector looked through them again and
+again, at exit too: 27 million of the 236 million instructions of `status` to a served
+printer (callgrind). The little garbage the imports leave is kept with them.
 """
 
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import sys
@@ -15,7 +24,14 @@ EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 
 
+_collector_held = False  # main() turned the collector off for the start-up
+
+
 def main() -> None:
+    global _collector_held
+    if gc.isenabled():
+        gc.disable()
+        _collector_held = True
     try:
         from robox.cli import cli
 
@@ -26,6 +42,17 @@ def main() -> None:
     except BrokenPipeError:
         quiet_exit_after_broken_pipe()
     sys.exit(status)
+
+
+def start_up_over() -> None:
+    """The command's module is loaded: what the imports made is frozen and the collector
+    back on, if main() turned it off (a program that runs the command line itself keeps
+    its collector as it has it)."""
+    global _collector_held
+    if _collector_held:
+        _collector_held = False
+        gc.freeze()
+        gc.enable()
 
 
 def quiet_exit_after_broken_pipe() -> None:

@@ -1,6 +1,7 @@
 """robox-cli starts light: a command's module is imported only when the command runs,
 and `--help` lists them all from a table (src/robox/cli/__init__.py)."""
 
+import gc
 import subprocess
 import sys
 
@@ -92,3 +93,33 @@ def test_the_wire_is_logged_once_logging_is_set_up_however_late(tmp_path):
     assert f"robox-cli: {WIRE_LINE}" in verbose.stderr.splitlines()
     assert library.returncode == 0, library.stderr
     assert library.stderr.splitlines().count(f"robox.wire: {WIRE_LINE}") == 1
+
+
+@pytest.mark.parametrize(("args", "on"), [(("--help",), False), (("sdcard", "--help"), True)])
+def test_the_collector_is_off_for_the_start_up_and_on_for_the_command(args, on):
+    """robox-cli's imports run with the cyclic collector off; once a command's module is
+    loaded, what they made is frozen and the collector is on again (src/robox/launch.py).
+    `--help` loads no command's module: the process ends first."""
+    probe = ("import atexit, gc, sys\n"
+             "atexit.register(lambda: print(gc.isenabled(), gc.get_freeze_count() > 0,"
+             " file=sys.stderr))\n"
+             "sys.argv = ['robox-cli', *sys.argv[1:]]\n"
+             "from robox.launch import main\n"
+             "main()\n")
+    out = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stderr.split()[-2:] == [str(on), str(on)]
+
+
+def test_a_program_running_the_command_line_keeps_its_collector_as_it_has_it(capsys):
+    frozen = gc.get_freeze_count()
+    gc.disable()
+    try:
+        cli.main(["sdcard", "--help"], standalone_mode=False)
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+    cli.main(["sdcard", "--help"], standalone_mode=False)
+    assert gc.isenabled() and gc.get_freeze_count() == frozen
+    assert "Usage:" in capsys.readouterr().out

@@ -8,6 +8,7 @@ import click
 
 from robox import __version__
 from robox.cli.common import RoboxGroup
+from robox.launch import start_up_over
 
 #: Each command, where it is defined, and the first sentence of its help: a command's
 #: module is imported only when the command runs (or its own help is asked for), so
@@ -100,6 +101,7 @@ class LazyGroup(RoboxGroup):
             module, attribute, _ = LAZY_COMMANDS[name]
             command = getattr(importlib.import_module(module), attribute)
             self.add_command(command, name)
+        start_up_over()
         return command
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
