@@ -231,3 +231,38 @@ def test_a_fast_server_looks_for_its_socket_hosts_next_command_before_it_sleeps(
         assert sleeps == [0.01]  # paced: the reply's host waits on the printer's time
     finally:
         host.close()
+
+
+def test_a_host_cut_off_inside_a_command_leaves_the_printer_waiting_and_the_cli_says_so(
+        tmp_path):
+    """A host gone with half a command sent (killed inside its write) leaves the printer
+    waiting for the rest, as the real one does (tests/firmware/test_usb_down.py). The
+    next robox-cli says, in one line, what clears it; a printer served afresh answers."""
+    state = tmp_path / "printer"
+    with serving.served(state) as pty:
+        host = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        host.connect(str(state / LINK_NAME))
+        host.sendall(b"\x91" + b"00000000" + b"x" * 100)  # 109 of a chunk's 521 bytes
+        host.close()
+        said = {}
+        for device in (f"sim:{state}", f"serial:{pty}"):
+            stuck = subprocess.run([*CLI, "--timeout", "1", "--device", device, "status"],
+                                   capture_output=True, text=True, timeout=120)
+            assert stuck.returncode == 1
+            said[device.split(":")[0]] = stuck.stderr.strip()
+        assert all(len(text.splitlines()) == 1 for text in said.values())
+        assert said["sim"] == (
+            "robox-cli: error: the printer did not answer. If a program was cut off while "
+            "it sent the printer a command, the virtual printer waits for the rest of it: "
+            f"`robox-cli sim stop --state {state}` switches it off, and the next command "
+            "serves it afresh")
+        assert said["serial"].endswith(
+            "the printer waits for the rest of it: unplug its USB cable and plug it back in "
+            "(or switch it off and on)")
+    try:
+        again = subprocess.run([*CLI, "--device", f"sim:{state}", "status", "--json"],
+                               capture_output=True, text=True, timeout=120)
+        assert again.returncode == 0, again.stderr
+    finally:
+        subprocess.run([*CLI, "sim", "stop", "--state", str(state)], capture_output=True,
+                       timeout=120)

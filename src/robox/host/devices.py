@@ -28,6 +28,7 @@ from robox.host.client import DEFAULT_TIMEOUT_MS, Printer
 from robox.host.transport import (
     PRODUCT_ID,
     VENDOR_ID,
+    NoReply,
     PermissionDenied,
     SerialTransport,
     SocketTransport,
@@ -38,6 +39,9 @@ from robox.host.transport import (
 from robox.locks import InUse
 
 ENVIRONMENT = "ROBOX_DEVICE"
+#: Why a printer that answered before may not answer a host that opens it: the firmware
+#: keeps a command's first bytes until the rest come, or until the USB link goes down.
+HALF_COMMAND = "If a program was cut off while it sent the printer a command,"
 SIM_STEP_S = 5.0  # simulated seconds a sim-once printer runs while the host waits
 
 
@@ -263,13 +267,24 @@ def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000,
             with _sim(directory, timeout_ms) as printer:
                 yield printer
             return
-        printer = _served(directory, timeout_ms, _started(directory), take_over)
-    elif kind == "usb":
-        printer = _select_usb(rest or None, timeout_ms, take_over)
-    elif kind == "serial":
-        if not rest:
+        try:
+            printer = _served(directory, timeout_ms, _started(directory), take_over)
+        except NoReply as exc:
+            from robox.sim.served import stop_hint
+
+            raise NoReply(f"{exc}. {HALF_COMMAND} the virtual printer waits for the rest "
+                          f"of it: {stop_hint(directory)} switches it off, and the next "
+                          "command serves it afresh") from None
+    elif kind in ("usb", "serial"):
+        if kind == "serial" and not rest:
             raise UsageError("serial needs a path: --device serial:/dev/ttyACM0")
-        printer = _connect(SerialTransport(rest), timeout_ms, take_over=take_over)
+        try:
+            printer = _select_usb(rest or None, timeout_ms, take_over) if kind == "usb" \
+                else _connect(SerialTransport(rest), timeout_ms, take_over=take_over)
+        except NoReply as exc:
+            raise NoReply(f"{exc}. {HALF_COMMAND} the printer waits for the rest of it: "
+                          "unplug its USB cable and plug it back in (or switch it off "
+                          "and on)") from None
     else:
         raise UsageError(f"unknown device {spec!r}: use usb, usb:ID, serial:PATH, sim, "
                          "sim:DIR, sim-once or sim-once:DIR")
