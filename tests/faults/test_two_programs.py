@@ -25,8 +25,10 @@ def one_line_refusal(err: bytes) -> bool:
 
 @pytest.fixture
 def env(tmp_path):
+    # (temporary files here too: a host killed with -9 leaves its job's copy behind)
+    (tmp_path / "tmp").mkdir()
     return {**os.environ, "XDG_RUNTIME_DIR": str(tmp_path / "runtime"),
-            "XDG_STATE_HOME": str(tmp_path / "host-state")}
+            "XDG_STATE_HOME": str(tmp_path / "host-state"), "TMPDIR": str(tmp_path / "tmp")}
 
 
 def test_status_loops_beside_send_job_wait_never_break_it(tmp_path, env):
