@@ -2,7 +2,10 @@
 
 A Ctrl-C while Python is still importing the command line's modules would otherwise
 end in a traceback, and output cut short by a closed pipe (`robox-cli status | head
--1`) in "Broken pipe": both end quietly here, as a shell tool's do.
+-1`) in "Broken pipe": both end quietly here, as a shell tool's do. A SIGTERM (`kill`,
+a service manager stopping a script) is taken as a Ctrl-C, where Python's default would
+end the process on the spot: the command lets go of its port, removes its temporary
+files and says where it stopped, as for a Ctrl-C (`sim serve` has its own handler).
 
 The cyclic garbage collector is off while the command line and the command's module
 are imported. Once the command's module is loaded (robox.cli calls start_up_over), what
@@ -27,11 +30,17 @@ EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 _collector_held = False  # main() turned the collector off for the start-up
 
 
+def _terminated(_signal: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main() -> None:
     global _collector_held
     if gc.isenabled():
         gc.disable()
         _collector_held = True
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:  # (an ignored one stays so)
+        signal.signal(signal.SIGTERM, _terminated)
     try:
         from robox.cli import cli
 

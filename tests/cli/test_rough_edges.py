@@ -300,15 +300,19 @@ def _sigint_default() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def test_ctrl_c_during_an_upload_says_what_it_left_and_resume_goes_on(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_ctrl_c_or_kill_during_an_upload_says_what_it_left_and_resume_goes_on(tmp_path, sig):
     """SIGINT mid-upload to a served printer (paced, so the upload takes a few seconds):
-    one line saying where it stopped and how to go on, status 130; --resume finishes it."""
+    one line saying where it stopped and how to go on, status 130; --resume finishes it.
+    A SIGTERM (`kill`) is taken the same way. The job's temporary copy is removed."""
     from tests.sim.serving import served
 
     state = tmp_path / "printer"
     job = tmp_path / "big.gcode"
     job.write_bytes(b"G28 X Y\n" + b"G4 P1\n" * 80_000)  # 480 KB: 7.5 s at 1x
-    env = {**os.environ, "ROBOX_DEVICE": ""}
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    env = {**os.environ, "ROBOX_DEVICE": "", "TMPDIR": str(temporary)}
     with served(state, speed=1) as pty:
         cli_ = [sys.executable, "-m", "robox.cli", "--device", f"serial:{pty}", "send-job",
                 str(job), "--raw", "--id", "big"]
@@ -318,9 +322,10 @@ def test_ctrl_c_during_an_upload_says_what_it_left_and_resume_goes_on(tmp_path):
         sending = subprocess.Popen(cli_, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                    env=env, preexec_fn=_sigint_default)
         time.sleep(2.5)  # started (even on a loaded machine), and well short of the end
-        sending.send_signal(signal.SIGINT)
+        sending.send_signal(sig)
         _, err = sending.communicate(timeout=60)
         assert sending.returncode == 130, err.decode()
+        assert not list(temporary.iterdir())
         line = err.decode().strip().splitlines()[-1]
         assert line.startswith("robox-cli: error: interrupted after ")
         assert line.endswith(f"of {len(job.read_bytes())} bytes of the upload; the printer "
