@@ -8,6 +8,7 @@ import click
 
 from robox import __version__
 from robox.cli.common import RoboxGroup
+from robox.launch import main as launch
 from robox.launch import start_up_over
 
 #: Each command, where it is defined, and the first sentence of its help: a command's
@@ -177,6 +178,4 @@ def cli(ctx: click.Context, device: str | None, timeout: float, verbose: int,
 
 
 def main() -> None:
-    from robox.launch import main as launch
-
     launch()

@@ -39,9 +39,6 @@ from robox.host.transport import (
 from robox.locks import InUse
 
 ENVIRONMENT = "ROBOX_DEVICE"
-#: Why a printer that answered before may not answer a host that opens it: the firmware
-#: keeps a command's first bytes until the rest come, or until the USB link goes down.
-HALF_COMMAND = "If a program was cut off while it sent the printer a command,"
 SIM_STEP_S = 5.0  # simulated seconds a sim-once printer runs while the host waits
 
 
@@ -249,6 +246,14 @@ def _started(directory: Path) -> Callable[[dict], None]:
     return say
 
 
+def _half_command(exc: NoReply, printer: str, clear: str) -> NoReply:
+    """`exc` (a printer that did not answer as it was opened), with the likeliest cause
+    and its cure: the firmware keeps a command's first bytes until the rest come, or
+    until the USB link goes down."""
+    return NoReply(f"{exc}. If a program was cut off while it sent the printer a command, "
+                   f"{printer} waits for the rest of it: {clear}")
+
+
 @contextlib.contextmanager
 def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000,
                  take_over: bool = False) -> Iterator[Printer]:
@@ -272,9 +277,9 @@ def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000,
         except NoReply as exc:
             from robox.sim.served import stop_hint
 
-            raise NoReply(f"{exc}. {HALF_COMMAND} the virtual printer waits for the rest "
-                          f"of it: {stop_hint(directory)} switches it off, and the next "
-                          "command serves it afresh") from None
+            raise _half_command(exc, "the virtual printer", f"{stop_hint(directory)} "
+                                "switches it off, and the next command serves it afresh"
+                                ) from None
     elif kind in ("usb", "serial"):
         if kind == "serial" and not rest:
             raise UsageError("serial needs a path: --device serial:/dev/ttyACM0")
@@ -282,9 +287,8 @@ def open_printer(spec: str | None, timeout_s: float = DEFAULT_TIMEOUT_MS / 1000,
             printer = _select_usb(rest or None, timeout_ms, take_over) if kind == "usb" \
                 else _connect(SerialTransport(rest), timeout_ms, take_over=take_over)
         except NoReply as exc:
-            raise NoReply(f"{exc}. {HALF_COMMAND} the printer waits for the rest of it: "
-                          "unplug its USB cable and plug it back in (or switch it off "
-                          "and on)") from None
+            raise _half_command(exc, "the printer", "unplug its USB cable and plug it back "
+                                "in (or switch it off and on)") from None
     else:
         raise UsageError(f"unknown device {spec!r}: use usb, usb:ID, serial:PATH, sim, "
                          "sim:DIR, sim-once or sim-once:DIR")
