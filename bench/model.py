@@ -344,11 +344,15 @@ def upload_text(size: int) -> bytes:
     return "".join(lines).encode()[:size]
 
 
+def upload_frames(data: bytes) -> list[int]:
+    """The lengths of the frames of an upload of `data`: start, chunks, end."""
+    chunks, tail = divmod(len(data), 512)
+    return [1 + 16] + [1 + 8 + 512] * chunks + [1 + 8 + 4 + tail]
+
+
 def bus_packets(data: bytes) -> int:
     """Packets of 64 bytes the frames of an upload of `data` take on the bus."""
-    chunks, tail = divmod(len(data), 512)
-    frames = [1 + 16] + [1 + 8 + 512] * chunks + [1 + 8 + 4 + tail]
-    return sum(-(-n // 64) for n in frames)
+    return sum(-(-n // 64) for n in upload_frames(data))
 
 
 def served_upload(speeds: tuple[float, ...], repeat: int, size: int = 100_000) -> None:
@@ -367,9 +371,13 @@ def served_upload(speeds: tuple[float, ...], repeat: int, size: int = 100_000) -
             began = clock.now
             printer.send_file(data, "upload", run=False)
             in_process_s = clock.now - began
+    # each frame's answer is read before the next frame is sent (the firmware has one
+    # transmit buffer: docs/performance.md), and takes a pass of its own
+    answered_s = limit_s + len(upload_frames(data)) * 0.001
     print(f"upload of {size / 1000:.0f} KB (stored, not printed), {bus_packets(data)} "
           f"packets: transfer limit {limit_s:.2f} s of printer time; in process "
-          f"{in_process_s:.2f} s of printer time")
+          f"{in_process_s:.3f} s of printer time (a pass per packet and one to answer "
+          f"each of {len(upload_frames(data))} frames: {answered_s:.3f} s)")
     for speed in speeds:
         walls = []
         for _ in range(repeat):

@@ -363,3 +363,21 @@ def test_a_reply_is_read_in_at_most_two_reads_of_whole_packets(virtual):
     for code, length, reads in bulk.replies:
         assert reads == (1 if code in FIXED_REPLY_LENGTH or length <= 64 else 2), hex(code)
     assert any(code not in FIXED_REPLY_LENGTH and reads == 2 for code, _, reads in bulk.replies)
+
+
+@pytest.mark.parametrize("size", [100, 512 * 6, 512 * 6 + 300])
+def test_an_upload_takes_a_pass_per_packet_and_one_to_answer_each_frame(virtual, size):
+    """The recording rig's timing: a frame of n bytes arrives in ceil(n/64) passes and is
+    answered in the pass after; the host reads that answer before it sends the next
+    frame (the firmware has one transmit buffer), so no pass carries two frames' bytes.
+    Start (0x90 and a 16-byte name), 512-byte chunks (0x91, 8 hex digits of sequence),
+    end (0x92, 8 hex digits of chunks, 4 of the tail's length, the tail)."""
+    data = b"".join(b"G1 X%d Y%d F3000\r" % (n % 200, n % 150) for n in range(size))[:size]
+    chunks, tail = divmod(size, 512)
+    frames = [1 + 16] + [1 + 8 + 512] * chunks + [1 + 8 + 4 + tail]
+    printer = connect(virtual)
+    clock = virtual.firmware.clock
+    began = clock.now
+    printer.send_file(data, "timing", job=False)
+    assert round((clock.now - began) * 1000) == sum(-(-n // 64) + 1 for n in frames)
+    assert virtual.firmware.file_system.read_committed(b"timing".ljust(16, b"\0")) == data
