@@ -353,8 +353,8 @@ def served_whole_path(path: Path, loaded: bool, in_process_rate: float,
             with served_printer(state) as pid:
                 server0 = server_cpu(pid)
                 start = time.perf_counter()
-                out, _, cpu, _ = robox_cli("--device", f"sim:{state}", "send-job", str(path),
-                                        "--wait", "--json")
+                out, _, cpu, _ = robox_cli("--device", f"sim:{state}", "send-job",
+                                           str(path), "--wait", "--json")
                 walls.append(time.perf_counter() - start)
                 servers.append(server_cpu(pid) - server0)
         hosts.append(cpu)
