@@ -18,6 +18,9 @@ from robox.packed import BytesWriter, i64, u8
 SNIFF_BYTES = 65536
 
 _WORD = re.compile(r"(\S)([^\sA-Z]*)")  # (str.isspace() is \s, ASCII letters upper-cased)
+# the same, with a number spelled out ("Xnan", "E-inf") kept as its word's: strtod, which
+# the firmware reads a word's number with, takes it as one (NaN, infinite)
+_SPELLED_WORD = re.compile(r"(\S)([+-]?(?:NAN|INF(?:INITY)?)(?![^\s;])|[^\sA-Z]*)")
 
 
 BOM = b"\xef\xbb\xbf"  # UTF-8's byte order mark, which Windows editors put first
@@ -98,6 +101,17 @@ def words(line: bytes) -> tuple[str, dict[str, str]]:
         return "", {}
     (letter, number), rest = out[0], out[1:]
     return letter + number, {k: v for k, v in rest}
+
+
+def words_as_read(line: bytes) -> tuple[str, dict[str, str]]:
+    """words(), with a number spelled out kept as its word's, as the printer reads it,
+    where words() sees its letters run together, each a word with no number."""
+    code, p = words(line)
+    if "" not in p.values():  # (nearly every line: only letters with no number need it)
+        return code, p
+    found = _SPELLED_WORD.findall(line.decode("ascii").upper())
+    (letter, digits), rest = found[0], found[1:]
+    return letter + digits, {k: v for k, v in rest}
 
 
 def number(value: float) -> bytes:

@@ -47,7 +47,7 @@ from robox.errors import UsageError
 from robox.formats.float8 import short_decimal
 from robox.formats.heads import DEFAULT_DIAMETER, HEAD_DEFAULT, head_kind, head_valves
 from robox.gcode import macros
-from robox.gcode.text import BOM, code_part, number, words
+from robox.gcode.text import BOM, code_part, number, words, words_as_read
 from robox.gcode.valve import ValveStage
 from robox.packed import i64
 
@@ -233,23 +233,6 @@ def _first_float(value: bytes | None) -> float | None:
         return None
     m = re.match(rb"\s*([-+]?\d*\.?\d+)", value)
     return float(m.group(1)) if m else None
-
-
-# a word whose number is spelled out ("Xnan", "E-inf"): strtod, which the firmware reads a
-# word's number with, takes it as one (NaN, infinite), where words() sees the letters run
-# together, each a word with no number
-_SPELLED: Final = re.compile(r"(\S)([+-]?(?:NAN|INF(?:INITY)?)(?![^\s;])|[^\sA-Z]*)")
-
-
-def _words(line: bytes) -> tuple[str, dict[str, str]]:
-    """words(), with a number spelled out kept as its word's, as the printer reads it
-    (then _number() refuses it: it is not finite)."""
-    code, p = words(line)
-    if "" not in p.values():  # (nearly every line: only letters with no number need it)
-        return code, p
-    found = _SPELLED.findall(line.decode("ascii").upper())
-    (letter, number), rest = found[0], found[1:]
-    return letter + number, {k: v for k, v in rest}
 
 
 def _number(text: str, what: str) -> float:
@@ -732,7 +715,7 @@ class Translator:
     # ------------------------------------------------------------ one line
     def _line(self, line: bytes, out: list[bytes]) -> None:
         """The job's lines for one of the slicer's, appended to `out`."""
-        code, p = _words(line)
+        code, p = words_as_read(line)  # (a spelled-out number: _number() refuses it)
         if not code or code[0] not in "GMT" or not code[1:].isdigit():
             self._drop(code or "?")
             return
