@@ -240,6 +240,25 @@ def test_passes_skipped_with_filament_in_find_a_slip_at_the_same_pass(slip_at_li
     assert fast == slow
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(-3, 40), st.integers(1, 40), st.integers(-60, 60))
+def test_a_run_of_drive_steps_moves_the_filament_as_the_steps_one_by_one(tip, length, n):
+    """Machine.step: a run of n microsteps of drive E leaves the filament, its index
+    wheel and what it extruded where n single steps leave them, also when the filament
+    leaves the drive part-way (its tail fed past it, its tip drawn back behind it)."""
+    from robox.hardware.machine import Filament, Machine
+
+    machines = []
+    for steps in ([n], [1 if n > 0 else -1] * abs(n)):
+        m = Machine()
+        m.filament[E] = Filament(tip=tip, tail=tip - length)
+        for step in steps:
+            m.step(E, step)
+        f = m.filament[E]
+        machines.append((f.tip, f.tail, m.wheel_passed[E], m.extruded[E]))
+    assert machines[0] == machines[1]
+
+
 @pytest.mark.skipif("robox.firmware.main" in compiled_modules(),
                     reason="a compiled class's methods cannot be replaced; the same source "
                            "is checked by the pure-Python run")

@@ -226,6 +226,13 @@ class Machine:
         f = self.filament[axis]
         if f is None or not f.tail <= 0 <= f.tip:
             return  # nothing under the drive
+        # a run of steps moves the filament only until it leaves the drive, as the
+        # same steps one at a time would: its tail a step past it, or its tip a step
+        # behind it
+        if n > 1 - f.tail:
+            n = 1 - f.tail
+        elif n < -1 - f.tip:
+            n = -1 - f.tip
         nozzle: i64 = self._nozzle_steps[axis]
         moved: i64 = n
         if n < 0 and self.deposition is not None:
