@@ -114,7 +114,7 @@ def test_runs_of_interrupts_and_skipped_passes_change_nothing(monkeypatch):
     fast = scripted_session(fresh_wire())
     slow_wire = fresh_wire()
     motion = slow_wire.fw.motion
-    monkeypatch.setattr(motion, "can_run_ahead", lambda: False)
+    monkeypatch.setattr(motion, "passes_ahead", lambda now, pass_s: 0)
     monkeypatch.setattr(motion, "_run_length", lambda *a: 1)
     monkeypatch.setattr(motion, "_singles", lambda blk, limit, cap: motion._interrupt(
         blk, motion.machine))
@@ -160,7 +160,7 @@ def filament_session(wire, moves: list[str], slip_from: int = -1) -> list[bytes]
 
 def one_interrupt_at_a_time(monkeypatch, wire) -> None:
     motion = wire.fw.motion
-    monkeypatch.setattr(motion, "can_run_ahead", lambda: False)
+    monkeypatch.setattr(motion, "passes_ahead", lambda now, pass_s: 0)
     monkeypatch.setattr(motion, "_run_length", lambda *a: 1)
     monkeypatch.setattr(motion, "_singles", lambda blk, limit, cap: motion._interrupt(
         blk, motion.machine))
@@ -240,6 +240,84 @@ def test_passes_skipped_with_filament_in_find_a_slip_at_the_same_pass(slip_at_li
     assert fast == slow
 
 
+def drive_session(wire, tip_mm: float, moves: list[str], slipping: bool,
+                  sample_s: float = 0.1,
+                  length_mm: float = 240_000.0) -> tuple[list[bytes], int]:
+    """Moves of drive E alone, the pass's view of it sampled every `sample_s` while each
+    runs and after it (the sensor's reading, the slip count, the automatic load's
+    count, slips found, errors, the filament and the interrupts' tick); and the count
+    of whole passes the loop ran."""
+    from robox.hardware.machine import NOZZLE_MM
+
+    m = wire.printer.hw.machine
+    m.insert_filament(E, length_mm=length_mm, tip_mm=tip_mm)
+    if tip_mm > NOZZLE_MM - 10.0:
+        m.heaters["nozzle0"].temperature = 210.0
+        wire.gcode(b"M104 S210\r")
+    m.wheel_slipping[E] = slipping
+    motion = wire.fw.motion
+    out = []
+    for text in moves:
+        wire.gcode(job_text([text]))
+        for _ in range(round(6.0 / sample_s)):
+            wire.printer.run_until(lambda: False, sample_s)
+            f = m.filament[E]
+            out.append(repr((m.switch_pin(E), list(motion.acc), list(motion.autoload_counter),
+                             motion.filament_slip, motion.slip_error, wire.fw.errors.bits,
+                             f.tip, f.tail, m.extruded[E], motion.interrupts,
+                             motion.last_tick, wire.fw.clock.now)).encode())
+        out.append(wire.gcode(b"M114\r"))
+    return out, wire.fw.whole_passes
+
+
+@pytest.mark.skipif("robox.firmware.motion" in compiled_modules(),
+                    reason="a compiled class's methods cannot be replaced; the same source "
+                           "is checked by the pure-Python run")
+def test_a_long_push_on_a_wheel_that_stops_skips_passes_and_finds_each_slip_on_time():
+    """A push far longer than the slip threshold (10 mm of E) on a wheel that does not
+    turn: the loop skips passes as far as the slip count has steps to spare, and finds
+    each slip (the count put back, the slip recorded) at the very pass one pass and one
+    interrupt at a time finds it."""
+    from robox.hardware.machine import NOZZLE_MM
+
+    moves = ["G1 E60 F150", "G1 E90 F400"]
+    fast, fast_passes = drive_session(fresh_wire(), NOZZLE_MM - 2.0, moves, True)
+    slow_wire = fresh_wire()
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        one_interrupt_at_a_time(monkeypatch, slow_wire)
+        slow, slow_passes = drive_session(slow_wire, NOZZLE_MM - 2.0, moves, True)
+    assert fast == slow
+    assert b"True" in fast[-2]  # (slips were found)
+    assert fast_passes * 4 < slow_passes
+
+
+@pytest.mark.skipif("robox.firmware.motion" in compiled_modules(),
+                    reason="a compiled class's methods cannot be replaced; the same source "
+                           "is checked by the pure-Python run")
+@pytest.mark.parametrize("tip_mm, length_mm, moves", [
+    (13.0, 240_000.0, ["G1 E-8 F60", "G1 E6 F60", "G1 E-8 F60", "G1 E-40 F300"]),
+    (30.0, 34.0, ["G1 E20 F300", "G1 E-4 F300"]),
+], ids=["drawn-back-past-the-sensor-and-fed-again-then-off-the-drive",
+        "fed-until-the-tail-leaves-the-drive"])
+def test_filament_at_its_sensors_edge_or_leaving_the_drive_runs_as_step_by_step(
+        tip_mm, length_mm, moves):
+    """The tip drawn back past the sensor (each pass then puts the slip count back
+    under a step, and with motion over the automatic load counts the wheel), fed in
+    again, then drawn back off the drive; a reel's end fed until its tail leaves the
+    drive (nothing moves it after that): the passes skipped while the sensor cannot
+    change, and the runs of steps, give what one pass and one interrupt at a time
+    give, the filament stopping where single steps stop it."""
+    fast, fast_passes = drive_session(fresh_wire(), tip_mm, moves, False,
+                                      length_mm=length_mm)
+    slow_wire = fresh_wire()
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        one_interrupt_at_a_time(monkeypatch, slow_wire)
+        slow, slow_passes = drive_session(slow_wire, tip_mm, moves, False,
+                                          length_mm=length_mm)
+    assert fast == slow
+    assert fast_passes * 4 < slow_passes
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.integers(-3, 40), st.integers(1, 40), st.integers(-60, 60))
 def test_a_run_of_drive_steps_moves_the_filament_as_the_steps_one_by_one(tip, length, n):
@@ -257,6 +335,40 @@ def test_a_run_of_drive_steps_moves_the_filament_as_the_steps_one_by_one(tip, le
         f = m.filament[E]
         machines.append((f.tip, f.tail, m.wheel_passed[E], m.extruded[E]))
     assert machines[0] == machines[1]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.booleans(), st.integers(-30, 30), st.integers(-30, 30), st.booleans(),
+       st.booleans())
+def test_the_sensor_margin_is_the_fewest_steps_that_change_the_sensors_reading(
+        near_sensor, tip, tail, forward, back):
+    """Machine.sensor_margin: stepping drive E one microstep at a time each way allowed,
+    the reading holds for one step fewer than the margin and changes at the margin one
+    way or the other; where nothing can change it (no filament under the drive, only a
+    way that leads from the sensor) it is NEVER. Tips by the sensor and by the drive,
+    tails by the drive (in front of it, the filament has left the drive)."""
+    from robox.hardware.machine import NEVER, Filament, Machine
+
+    sensor = Machine()._sensor_steps[E]
+    tip_at = sensor + tip if near_sensor else tip
+    tail_at = min(tail, tip_at)
+
+    def machine():
+        m = Machine()
+        m.filament[E] = Filament(tip=tip_at, tail=tail_at)
+        return m
+
+    changed_at = []
+    for way, allowed in ((1, forward), (-1, back)):
+        m = machine()
+        before = m.switch_pin(E)
+        for n in range(1, sensor + 100 if allowed else 0):
+            m.step(E, way)
+            if m.switch_pin(E) != before:
+                changed_at.append(n)
+                break
+    margin = machine().sensor_margin(E, forward, back)
+    assert margin == (min(changed_at) if changed_at else NEVER)
 
 
 @pytest.mark.skipif("robox.firmware.main" in compiled_modules(),
@@ -289,7 +401,7 @@ def test_the_queued_length_kept_is_the_queued_blocks_lengths_added_up():
                     reason="a compiled class's methods cannot be replaced; the same source "
                            "is checked by the pure-Python run")
 def test_the_drives_steps_kept_behind_the_block_under_way_are_the_queues():
-    """The running totals can_run_ahead() reads, each drive's steps in the blocks queued
+    """The running totals passes_ahead() reads, each drive's steps in the blocks queued
     behind the one at buffer_out, are after every pass of a job of extruding moves (E
     forwards, then, from an empty queue, back) what walking the queue gives."""
     from tests.firmware.wire import circle_job, ident

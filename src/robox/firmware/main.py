@@ -265,9 +265,14 @@ class Firmware:
             return n
         motion = self.motion
         if not motion.empty() or self.hw.machine.hand_busy():
-            if not skip or not motion.can_run_ahead() or horizon - now < 2 * PASS_S:
+            if not skip or horizon - now < 2 * PASS_S:
+                return 1
+            ahead: i64 = motion.passes_ahead(now, PASS_S)
+            if ahead < 2:
                 return 1
             most: i64 = int((horizon - now) / PASS_S + 1e-9)
+            if ahead < most:
+                most = ahead
             may_step = False
             if stepping:  # light passes up to the first EEPROM step that is not inert
                 if self._usb_coming():  # and to the frame that brings what acts

@@ -207,7 +207,7 @@ class Motion:
         self.queued_length: i64 = 0
         # the steps (16.16, their sizes) the queued blocks after the one at buffer_out
         # make on each drive (E, D), kept as blocks are queued and begun: none of their
-        # lengths changes before it is begun (can_run_ahead adds the one under way)
+        # lengths changes before it is begun (passes_ahead adds the one under way)
         self._tail = vec[i64]([0, 0])
         self.acc = vec[i64]([0] * 6)
         self._block_steps = vec[i64]([0] * 6)  # queue_block's scratch: each axis's steps
@@ -598,32 +598,119 @@ class Motion:
         while self.next_tick <= limit:
             self._advance(limit, NO_CAP, a)
 
-    def can_run_ahead(self) -> bool:
-        """Whether the loop may skip passes while motion runs: nothing the foreground
-        watches pass by pass can change. The Z-top switch is open; and for each drive
-        with filament in it, the filament is at its sensor (else the automatic load
-        watches the wheel pass by pass) and its slip count, with every step the queued
-        blocks still make on it, stays within the slip threshold (an index edge only
-        lowers it): no pass in between could find a slip."""
+    def passes_ahead(self, now: float, pass_s: float) -> i64:
+        """How many passes (each `pass_s` long) from `now` the loop may skip while motion
+        runs, the step interrupts run ahead over them (NO_CAP: any number; under 2:
+        none), so that nothing the foreground watches pass by pass changes on the way.
+        The Z-top switch is open and no hand is on a filament. For each drive with
+        filament in it, no pass in between may see its sensor read otherwise; where the
+        sensor finds no filament, each pass only puts the slip count back under a step
+        (the automatic load waits for motion to end), as the pass that ends the run
+        does; where it finds filament, no pass in between may find a slip: the slip
+        count (the accumulator's size) stays within the threshold. Where the queued
+        blocks' steps could change either, the passes are as many as the steps to
+        spare allow (see `_passes_within`)."""
         m = self.machine
         if m.z_top_pin() != 1 or m.hand_busy():
-            return False
+            return 0
         invert = self.fw.parameters.invert_switch
+        most: i64 = NO_CAP
+        n: i64 = self.queued()
         i: i64
+        k: i64
         for i in range(2):
             axis: i64 = E + i  # then D
             if m.filament[axis] is None:
                 continue
-            if m.switch_pin(axis) == invert[axis]:
-                return False
-            if self.what == UNTIL_SLIP and self.filament_slip:
-                return False
             ahead: i64 = 0  # 16.16: the steps the queued blocks make on this drive
-            if self.buffer_out != self.buffer_in:
+            if n:
                 ahead = _drive_steps(self.block[self.buffer_out], axis) + self._tail[i]
-            if self._slip_count(axis) + ahead + 65536 > self._slip_threshold(i):
-                return False
-        return True
+            # the steps they make, at most (a block's carries out of a fraction that
+            # starts under a step)
+            steps: i64 = (ahead >> 16) + n
+            margin: i64 = m.sensor_margin(axis, True, True)
+            if margin <= steps:  # only the way the blocks go counts
+                margin = self._sensor_margin(axis)
+                if margin <= steps:  # an interrupt makes a step at most
+                    k = self._passes_within(margin - 1, now, pass_s)
+                    if k < most:
+                        most = k
+            if m.switch_pin(axis) == invert[axis]:  # no filament at the sensor
+                if self.autoload_counter[i]:
+                    return 0
+                continue
+            if self.what == UNTIL_SLIP and self.filament_slip:
+                return 0
+            # the count after them, at most: a wheel's edge leaves under a step, and
+            # each block that begins puts every fraction at a half step (up to half a
+            # step more)
+            count: i64 = self._slip_count(axis)
+            if count < 0xFFFF:
+                count = 0xFFFF
+            count += n * 0x8000
+            threshold: i64 = self._slip_threshold(i)
+            if count + ahead > threshold:
+                if count > threshold:
+                    return 0
+                # an interrupt adds at most the largest increment a queued block has
+                k = self._passes_within((threshold - count) // self._biggest_inc(axis),
+                                        now, pass_s)
+                if k < most:
+                    most = k
+        return most
+
+    def _sensor_margin(self, axis: i64) -> i64:
+        """The fewest steps drive `axis` makes, the ways the queued blocks drive it,
+        before its sensor may read otherwise (NEVER: it cannot)."""
+        forward = back = False
+        b: i64 = self.buffer_out
+        while b != self.buffer_in:
+            step: i64 = self.block[b].inc[axis]
+            if step > 0:
+                forward = True
+            elif step < 0:
+                back = True
+            b = (b + 1) & MASK
+        return self.machine.sensor_margin(axis, forward, back)
+
+    def _biggest_inc(self, axis: i64) -> i64:
+        """The largest increment (16.16, its size) a queued block has on `axis`; at
+        least 1."""
+        biggest: i64 = 1
+        b: i64 = self.buffer_out
+        while b != self.buffer_in:
+            step: i64 = self.block[b].inc[axis]
+            if step < 0:
+                step = -step
+            if step > biggest:
+                biggest = step
+            b = (b + 1) & MASK
+        return biggest
+
+    def _passes_within(self, interrupts: i64, now: float, pass_s: float) -> i64:
+        """How many passes (each `pass_s` long) from `now` take no more than `interrupts`
+        of the coming step interrupts: they come no closer together than the period of
+        the highest speed the motion can reach (the speed now, or a queued block's), and
+        a pass takes those up to its tick."""
+        if interrupts < 1:
+            return 0
+        if interrupts > 1 << 40:  # (more than any horizon holds: the sums stay native)
+            interrupts = 1 << 40
+        fastest: i64 = self.speed_x4k
+        b: i64 = self.buffer_out
+        while b != self.buffer_in:
+            top: i64 = self.block[b].speed << 12
+            if top > fastest:
+                fastest = top
+            b = (b + 1) & MASK
+        period: i64 = 1
+        if fastest > 0 and 0x10000000 // fastest > 1:
+            period = 0x10000000 // fastest
+        # the interrupt after the last of them is due at this tick at the soonest; a
+        # pass's tick, worked out from the clock's sum, is within a tick of its count
+        beyond: i64 = self.next_tick + interrupts * period
+        passes: i64 = (beyond - self.tick_of(now) - 2) // self.tick_of(pass_s)
+        return passes if passes > 0 else 0
 
     def run_ahead(self, until: float, kind: str) -> float | None:
         """Run the interrupts due by `until`, stopping after the one that leaves the queue

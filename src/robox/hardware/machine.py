@@ -288,6 +288,31 @@ class Machine:
         sensor: i64 = self._sensor_steps[axis]
         return f.tail <= sensor <= f.tip
 
+    def sensor_margin(self, axis: i64, forward: bool, back: bool) -> i64:
+        """The fewest microsteps drive `axis` (E, D) must make, feeding where `forward`
+        and drawing back where `back`, before its filament sensor reads otherwise
+        (NEVER: it cannot). The filament moves only while it spans the drive, a
+        microstep a step at most (no hand is on it), and the sensor is in front of the
+        drive."""
+        if self.stuck and AXES[axis] in self.stuck:
+            return NEVER  # (a sensor stuck at one reading)
+        f = self.filament[axis]
+        if f is None or not f.tail <= 0 <= f.tip:
+            return NEVER  # nothing under the drive: nothing moves
+        sensor: i64 = self._sensor_steps[axis]
+        if f.tip < sensor:  # the tip short of the sensor: fed, it reaches it unless the
+            # tail leaves the drive first (the drive moves it 1 - tail steps at most)
+            if forward and sensor - f.tip <= 1 - f.tail:
+                return sensor - f.tip
+            return NEVER
+        # at the sensor: drawn back, the tip falls short of it (while still in the
+        # drive, which is behind the sensor); fed, the tail leaves the drive first
+        # (statements, not a conditional expression: compiled, one whose arms mix an
+        # i64 and an int goes through a boxed number)
+        if back:
+            return f.tip - sensor + 1
+        return NEVER
+
     def actuated(self, axis: int) -> bool:
         """Whether the axis's switch (E, D: the filament sensor) is actuated."""
         if self.stuck:
