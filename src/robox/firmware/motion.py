@@ -629,10 +629,11 @@ class Motion:
             # starts under a step)
             steps: i64 = (ahead >> 16) + n
             margin: i64 = m.sensor_margin(axis, True, True)
-            if margin <= steps:  # only the way the blocks go counts
-                margin = self._sensor_margin(axis)
+            if margin <= steps:  # only the ways the blocks drive it count
+                forward, back, biggest, fastest = self._queue_reach(axis)
+                margin = m.sensor_margin(axis, forward, back)
                 if margin <= steps:  # an interrupt makes a step at most
-                    k = self._passes_within(margin - 1, now, pass_s)
+                    k = self._passes_within(margin - 1, fastest, now, pass_s)
                     if k < most:
                         most = k
             if m.switch_pin(axis) == invert[axis]:  # no filament at the sensor
@@ -653,56 +654,48 @@ class Motion:
                 if count > threshold:
                     return 0
                 # an interrupt adds at most the largest increment a queued block has
-                k = self._passes_within((threshold - count) // self._biggest_inc(axis),
-                                        now, pass_s)
+                forward, back, biggest, fastest = self._queue_reach(axis)
+                k = self._passes_within((threshold - count) // biggest, fastest, now,
+                                        pass_s)
                 if k < most:
                     most = k
         return most
 
-    def _sensor_margin(self, axis: i64) -> i64:
-        """The fewest steps drive `axis` makes, the ways the queued blocks drive it,
-        before its sensor may read otherwise (NEVER: it cannot)."""
+    def _queue_reach(self, axis: i64) -> tuple[bool, bool, i64, i64]:
+        """What the queued blocks can do to drive `axis`: whether one feeds it, whether
+        one draws it back, the largest increment (16.16, its size; at least 1) one has
+        on it, and the highest speed (x 4096) the motion can reach: the speed now, or a
+        block's."""
         forward = back = False
+        biggest: i64 = 1
+        fastest: i64 = self.speed_x4k
         b: i64 = self.buffer_out
         while b != self.buffer_in:
-            step: i64 = self.block[b].inc[axis]
+            blk = self.block[b]
+            step: i64 = blk.inc[axis]
             if step > 0:
                 forward = True
             elif step < 0:
                 back = True
-            b = (b + 1) & MASK
-        return self.machine.sensor_margin(axis, forward, back)
-
-    def _biggest_inc(self, axis: i64) -> i64:
-        """The largest increment (16.16, its size) a queued block has on `axis`; at
-        least 1."""
-        biggest: i64 = 1
-        b: i64 = self.buffer_out
-        while b != self.buffer_in:
-            step: i64 = self.block[b].inc[axis]
-            if step < 0:
                 step = -step
             if step > biggest:
                 biggest = step
+            top: i64 = blk.speed << 12
+            if top > fastest:
+                fastest = top
             b = (b + 1) & MASK
-        return biggest
+        return forward, back, biggest, fastest
 
-    def _passes_within(self, interrupts: i64, now: float, pass_s: float) -> i64:
+    def _passes_within(self, interrupts: i64, fastest: i64, now: float,
+                       pass_s: float) -> i64:
         """How many passes (each `pass_s` long) from `now` take no more than `interrupts`
         of the coming step interrupts: they come no closer together than the period of
-        the highest speed the motion can reach (the speed now, or a queued block's), and
-        a pass takes those up to its tick."""
+        the speed `fastest` (x 4096), the highest the motion can reach, and a pass takes
+        those up to its tick."""
         if interrupts < 1:
             return 0
         if interrupts > 1 << 40:  # (more than any horizon holds: the sums stay native)
             interrupts = 1 << 40
-        fastest: i64 = self.speed_x4k
-        b: i64 = self.buffer_out
-        while b != self.buffer_in:
-            top: i64 = self.block[b].speed << 12
-            if top > fastest:
-                fastest = top
-            b = (b + 1) & MASK
         period: i64 = 1
         if fastest > 0 and 0x10000000 // fastest > 1:
             period = 0x10000000 // fastest
