@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable
-from dataclasses import dataclass
 from enum import IntEnum
 from typing import TYPE_CHECKING, Final
 
@@ -89,23 +88,23 @@ BANK0: Final = BANK_ADDRESSES[0]
 BANK1: Final = BANK_ADDRESSES[1]
 
 
-@dataclass
 class EepromState:
     """What the firmware keeps for one EEPROM."""
 
-    index: EepromIndex
-    status: Status = NOT_PRESENT
-    #: The RAM copy of a bank: bytes, made anew by a change (see _spliced), where a
-    #: bytearray's items and slices are generic lookups compiled.
-    buffer: bytes = bytes(BANK_SIZE)
-    working_bank: int = 0
-    counter: int = 0
-    writing: bool = False
-    last_ack: float = 0.0
-    #: banks verified since the RAM copy last changed (2: the chip holds it twice)
-    verified_banks: int = 0
-    acked: bool = True  # the last transaction was acknowledged (assumed at power-up)
-    last_step: float = -1.0
+    def __init__(self, index: EepromIndex, last_ack: float = 0.0) -> None:
+        self.index = index
+        self.status: Status = NOT_PRESENT
+        #: The RAM copy of a bank: bytes, made anew by a change (see _spliced), where a
+        #: bytearray's items and slices are generic lookups compiled.
+        self.buffer = bytes(BANK_SIZE)
+        self.working_bank = 0
+        self.counter = 0
+        self.writing = False
+        self.last_ack = last_ack
+        #: banks verified since the RAM copy last changed (2: the chip holds it twice)
+        self.verified_banks = 0
+        self.acked = True  # the last transaction was acknowledged (assumed at power-up)
+        self.last_step = -1.0
 
     @property
     def data(self) -> bytes:

@@ -156,11 +156,11 @@ def _inside(block: int, start: int, count: int, capacity: int) -> bool:
     return any(block in r for r in extent_blocks(start, count, capacity))
 
 
-@dataclass
 class _Reader:
-    slot: int
-    block: int  # next block to read
-    offset: int  # bytes delivered so far
+    def __init__(self, slot: int, block: int, offset: int) -> None:
+        self.slot = slot
+        self.block = block  # next block to read
+        self.offset = offset  # bytes delivered so far
 
 
 class FileSystem:

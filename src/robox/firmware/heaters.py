@@ -13,7 +13,6 @@ thermal plants (a deliberate difference: the physics is the model's own).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Final
 
 from robox.firmware.cline import Line, report_float, strtof
@@ -67,19 +66,19 @@ OPEN_THERMISTOR: Final = -40.0
 HOT_FLAG_BYTE: Final = 0  # nonvolatile byte of the card directory: "head was hot"
 
 
-@dataclass
 class Controller:
     """One temperature controller's state."""
 
-    plant: str
-    mode: int = 0
-    target: list[float] = field(default_factory=lambda: [0.0, 0.0])
-    measured: float = 0.0
-    last_measured: float = 0.0
-    integrator: float = 0.0
-    pwm_duty: int = 0
-    fault_since: float = 0.0
-    unload_since: float = 0.0
+    def __init__(self, plant: str, target: list[float] | None = None) -> None:
+        self.plant = plant
+        self.mode = 0
+        self.target = [0.0, 0.0] if target is None else target
+        self.measured = 0.0
+        self.last_measured = 0.0
+        self.integrator = 0.0
+        self.pwm_duty = 0
+        self.fault_since = 0.0
+        self.unload_since = 0.0
 
     def setpoint(self) -> float:
         if self.mode == 1:

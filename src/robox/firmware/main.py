@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any, Final
 
 from robox.firmware.carith import i64
@@ -49,16 +48,18 @@ POWER_UP_ORDER: Final = ("parameters", "hours", "eeproms", "command", "job", "he
                          "motion", "position", "file_system", "reprogram", "user_interface")
 
 
-@dataclass
 class Hardware:
     """Everything outside the microcontroller; it persists across resets."""
 
-    card: SdCard
-    eeprom_bus: EepromBus
-    flash: Flash = field(default_factory=Flash)
-    usb: UsbLink = field(default_factory=UsbLink)
-    machine: Machine = field(default_factory=Machine)
-    clock: SimClock = field(default_factory=SimClock)
+    def __init__(self, card: SdCard, eeprom_bus: EepromBus, flash: Flash | None = None,
+                 usb: UsbLink | None = None, machine: Machine | None = None,
+                 clock: SimClock | None = None) -> None:
+        self.card = card
+        self.eeprom_bus = eeprom_bus
+        self.flash = Flash() if flash is None else flash
+        self.usb = UsbLink() if usb is None else usb
+        self.machine = Machine() if machine is None else machine
+        self.clock = SimClock() if clock is None else clock
 
 
 class Firmware:

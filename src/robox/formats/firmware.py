@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import binascii
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 
 # ------------------------------------------------------------ flash layout
@@ -200,14 +200,15 @@ class Check(Enum):
     CHECKSUM = "the image does not sum to zero"
 
 
-@dataclass
 class Verification:
     """The printer's verdict on a firmware file, with the figures behind it."""
 
-    characters: int
-    size: int | None  # bytes of binary, when the text decodes
-    checksum: int | None
-    failures: list[tuple[Check, str]] = field(default_factory=list)
+    def __init__(self, characters: int, size: int | None, checksum: int | None,
+                 failures: list[tuple[Check, str]]) -> None:
+        self.characters = characters
+        self.size = size  # bytes of binary, when the text decodes
+        self.checksum = checksum
+        self.failures = failures
 
     @property
     def accepted(self) -> bool:

@@ -9,7 +9,6 @@ import itertools
 import os
 import tempfile
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
@@ -136,17 +135,19 @@ def _no_macros(source: str | os.PathLike, codes: Iterable[bytes]) -> Iterator[by
             yield code
 
 
-@dataclass
 class JobFile:
     """A job ready to upload, in a temporary file."""
 
-    path: Path
-    size: int
-    lines: int
-    sha1: str
-    translation: Summary | None  # None: sent as it is
-    long_line: tuple[int, int] | None = None  # (number, bytes) of the first line too long
-    source: str = ""
+    def __init__(self, path: Path, size: int, lines: int, sha1: str,
+                 translation: Summary | None, long_line: tuple[int, int] | None = None,
+                 source: str = "") -> None:
+        self.path = path
+        self.size = size
+        self.lines = lines
+        self.sha1 = sha1
+        self.translation = translation  # None: sent as it is
+        self.long_line = long_line  # (number, bytes) of the first line too long
+        self.source = source
 
     def refuse_long_lines(self) -> None:
         """Refuse to upload a job with a line the printer would abort it on (ImageError);

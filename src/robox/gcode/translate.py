@@ -39,7 +39,6 @@ import math
 import re
 from collections import Counter
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
 
@@ -101,36 +100,41 @@ DROPPED_QUIETLY = {"G21", "M82", "M83"}
 START_DONE: Final = b";START_DONE"
 
 
-@dataclass
 class Options:
-    filament_diameter: tuple[float, float] = (DEFAULT_DIAMETER, DEFAULT_DIAMETER)
-    head: str = HEAD_DEFAULT
-    nozzle: int | None = None  # single-material heads: 0 or 1; None: from the slicer
-    macros: Path | None = None
-    sequences: bool = True  # our start and end sequences around the job
-    valve: str = "automaker"  # "automaker": closes on the move, opens refill; "simple"
-    ejection: tuple[float, ...] | None = None  # mm3 per nozzle (None: the head's own)
+    def __init__(self, filament_diameter: tuple[float, float] = (DEFAULT_DIAMETER,
+                                                                 DEFAULT_DIAMETER),
+                 head: str = HEAD_DEFAULT, nozzle: int | None = None,
+                 macros: Path | None = None, sequences: bool = True,
+                 valve: str = "automaker", ejection: tuple[float, ...] | None = None) -> None:
+        self.filament_diameter = filament_diameter
+        self.head = head
+        self.nozzle = nozzle  # single-material heads: 0 or 1; None: from the slicer
+        self.macros = macros
+        self.sequences = sequences  # our start and end sequences around the job
+        # "automaker": closes on the move, opens refill; "simple"
+        self.valve = valve
+        self.ejection = ejection  # mm3 per nozzle (None: the head's own)
 
 
-@dataclass
 class Summary:
-    slicer: str = "unknown"
-    e_mode: str = "absolute mm"
-    passthrough: bool = False
-    head: str = HEAD_DEFAULT
-    nozzle: int | None = None
-    lines_in: int = 0
-    lines_out: int = 0
-    volume_mm3: dict[str, float] = field(default_factory=lambda: {"E": 0.0, "D": 0.0})
-    valve_cycles: int = 0
-    retractions: int = 0
-    dropped: Counter = field(default_factory=Counter)
-    macros: int = 0
-    sequence_mm3: float = 0.0  # the start sequence's purge
-    depressurise_mm3: float = 0.0  # drawn back at the end, per feed
-    nozzle_changes: int = 0  # by feature or extrusion width
-    valve: dict | None = None  # what the valve stage did (robox.gcode.valve)
-    start_lines: int = 0  # the job's lines up to the end of the start sequence
+    def __init__(self, slicer: str = "unknown", head: str = HEAD_DEFAULT) -> None:
+        self.slicer = slicer
+        self.e_mode = "absolute mm"
+        self.passthrough = False
+        self.head = head
+        self.nozzle: int | None = None
+        self.lines_in = 0
+        self.lines_out = 0
+        self.volume_mm3 = {"E": 0.0, "D": 0.0}
+        self.valve_cycles = 0
+        self.retractions = 0
+        self.dropped: Counter = Counter()
+        self.macros = 0
+        self.sequence_mm3 = 0.0  # the start sequence's purge
+        self.depressurise_mm3 = 0.0  # drawn back at the end, per feed
+        self.nozzle_changes = 0  # by feature or extrusion width
+        self.valve: dict | None = None  # what the valve stage did (robox.gcode.valve)
+        self.start_lines = 0  # the job's lines up to the end of the start sequence
 
     def as_dict(self) -> dict:
         return {"slicer": self.slicer, "e_mode": self.e_mode,
@@ -144,16 +148,17 @@ class Summary:
                 "nozzle_changes": self.nozzle_changes, "valve": self.valve}
 
 
-@dataclass
 class Detected:
-    slicer: str = "unknown"
-    robox: bool = False  # already a Robox job
-    volumetric: bool = False
-    relative_e: bool = False
-    nozzle_diameter: float | None = None
-    marlin_e: bool = False  # M82, M83 or G92 E: E written in a slicer's Marlin manner
-    features: bool = False  # the slicer marks its features (;TYPE:)
-    tools: tuple[int, ...] = (0,)  # the slicer's extruders the file uses
+    def __init__(self) -> None:
+        self.slicer = "unknown"
+        self.robox = False  # already a Robox job
+        self.volumetric = False
+        self.relative_e = False
+        self.nozzle_diameter: float | None = None
+        # M82, M83 or G92 E: E written in a slicer's Marlin manner
+        self.marlin_e = False
+        self.features = False  # the slicer marks its features (;TYPE:)
+        self.tools: tuple[int, ...] = (0,)  # the slicer's extruders the file uses
 
     @property
     def from_slicer(self) -> bool:

@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
 from typing import Final
 
 from robox.formats.float8 import short_decimal, skip_blanks
@@ -140,16 +139,16 @@ class Step:
         self.raw = raw
 
 
-@dataclass
 class ValveCounts:
-    closes_on_move: int = 0
-    closes_on_inner_wall: int = 0
-    partial_opens: int = 0
-    standing_closes: int = 0
-    refill_mm3: float = 0.0
-    removed_mm3: float = 0.0
-    tool_changes_in_travel: int = 0
-    reselects: int = 0
+    def __init__(self) -> None:
+        self.closes_on_move = 0
+        self.closes_on_inner_wall = 0
+        self.partial_opens = 0
+        self.standing_closes = 0
+        self.refill_mm3 = 0.0
+        self.removed_mm3 = 0.0
+        self.tool_changes_in_travel = 0
+        self.reselects = 0
 
     def as_dict(self) -> dict:
         return {"closes_on_move": self.closes_on_move,
@@ -161,15 +160,13 @@ class ValveCounts:
                 "reselects": self.reselects}
 
 
-@dataclass
 class ValveStage:
     """Feed the translator's job lines to `feed()`; it returns the lines to write."""
 
-    valves: HeadValves
-    word: bytes = b" E"  # the extruder word of the current tool
-    counts: ValveCounts = field(default_factory=ValveCounts)
-
-    def __post_init__(self) -> None:
+    def __init__(self, valves: HeadValves) -> None:
+        self.valves = valves
+        self.word = b" E"  # the extruder word of the current tool
+        self.counts = ValveCounts()
         self.buf: list[Step] = []
         self.open_at = -1  # the current path's OPEN in the buffer (-1: none, or written)
         self.is_open = False

@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Final
 
 from robox.formats.heads import E_FEED, HeadValves
@@ -95,29 +94,30 @@ SPILL_ROWS = 1 << 16
 COLUMNS = ("x0", "y0", "x1", "y1", "z", "deposited", "driven", "nozzle", "path")
 
 
-@dataclass
 class Path:
-    number: int
-    nozzle: int
-    z: float
-    start: tuple[float, float]
-    end: tuple[float, float] = (math.nan, math.nan)
-    closed: bool = False
-    judged: bool = True  # False: opened while the record was told not to judge
+    def __init__(self, number: int, nozzle: int, z: float, start: tuple[float, float],
+                 judged: bool = True) -> None:
+        self.number = number
+        self.nozzle = nozzle
+        self.z = z
+        self.start = start
+        self.end = (math.nan, math.nan)
+        self.closed = False
+        self.judged = judged  # False: opened while the record was told not to judge
 
 
-@dataclass
 class Deposition:
     """The record of where plastic went (see the module's docstring)."""
 
-    valves: HeadValves
-    diameters_mm: tuple[float, float]  # filament of feed E, feed D
-    seats: tuple[float, float] = (0.0, 0.0)  # B where nozzle 0, nozzle 1 shut
-    paths: list[Path] = field(default_factory=list)
-    recording: bool = True  # False: the valve's and the pressure's physics, no record
-    spill: str | None = None  # a file the older rows go to (None: all kept in memory)
-
-    def __post_init__(self) -> None:
+    def __init__(self, valves: HeadValves, diameters_mm: tuple[float, float],
+                 seats: tuple[float, float] = (0.0, 0.0), *, recording: bool = True,
+                 spill: str | None = None) -> None:
+        self.valves = valves
+        self.diameters_mm = diameters_mm  # filament of feed E, feed D
+        self.seats = seats  # B where nozzle 0, nozzle 1 shut
+        self.paths: list[Path] = []
+        self.recording = recording  # False: the valve's and the pressure's physics, no record
+        self.spill = spill  # a file the older rows go to (None: all kept in memory)
         nozzles = len(self.valves.feeds)
         # a plain attribute: looked at on every valve step (a property of the frozen
         # table would be a call into interpreted code from the compiled machine)

@@ -7,7 +7,6 @@ a read that fails, a card that is gone.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 try:  # mypyc's class options (robox.native: compiled, these classes are native)
@@ -18,14 +17,15 @@ except ImportError:  # (not installed: pure Python, where the options mean nothi
         return lambda cls: cls
 
 
-@dataclass
 class Tear:
     """How a torn write lands: a prefix of the new bytes, a seeded byte mix, or, beyond
     the byte-mix model, a block left erased (every byte `fill`)."""
 
-    prefix: int | None = None
-    seed: int | None = None
-    fill: int | None = None
+    def __init__(self, prefix: int | None = None, seed: int | None = None,
+                 fill: int | None = None) -> None:
+        self.prefix = prefix
+        self.seed = seed
+        self.fill = fill
 
     def apply(self, old: bytes, new: bytes) -> bytes:
         import numpy as np  # only here: keeps robox-cli start-up fast
@@ -45,7 +45,6 @@ class Tear:
         return f"prefix={self.prefix}" if self.prefix is not None else f"mix={self.seed}"
 
 
-@dataclass
 class FaultPlan:
     """Faults scheduled by ordinal (1-based) of the device's writes and reads.
 
@@ -57,11 +56,14 @@ class FaultPlan:
       (reads and writes counted together).
     """
 
-    cut_after_write: int | None = None
-    tear_write: int | None = None
-    tear: Tear = field(default_factory=Tear)
-    failing_reads: set[int] = field(default_factory=set)
-    remove_before_access: int | None = None
+    def __init__(self, cut_after_write: int | None = None, tear_write: int | None = None,
+                 tear: Tear | None = None, failing_reads: set[int] | None = None,
+                 remove_before_access: int | None = None) -> None:
+        self.cut_after_write = cut_after_write
+        self.tear_write = tear_write
+        self.tear = Tear() if tear is None else tear
+        self.failing_reads: set[int] = set() if failing_reads is None else failing_reads
+        self.remove_before_access = remove_before_access
 
     def describe(self) -> str:
         parts = []
@@ -76,7 +78,6 @@ class FaultPlan:
         return ",".join(parts) or "none"
 
 
-@dataclass
 class EepromFaultPlan:
     """A hot-unplug scheduled by transaction ordinal (1-based) of one EEPROM chip.
 
@@ -85,8 +86,9 @@ class EepromFaultPlan:
     way the transaction is not acknowledged.
     """
 
-    unplug_at: int | None = None
-    write_lands: bool = False
+    def __init__(self, unplug_at: int | None = None, write_lands: bool = False) -> None:
+        self.unplug_at = unplug_at
+        self.write_lands = write_lands
 
     def describe(self) -> str:
         if self.unplug_at is None:
@@ -94,15 +96,15 @@ class EepromFaultPlan:
         return f"unplug_at={self.unplug_at},write_lands={self.write_lands}"
 
 
-@dataclass
 class Landing:
     """How the write that power fails during lands: "whole" (then power fails), or torn:
     on a card block "prefix"/"mix"/"erase" as a Tear; on an EEPROM byte "garble" (the
     cell left holding `param`); on a flash page "partial" (erased, its first `param`
     bytes programmed)."""
 
-    mode: str = "whole"
-    param: int = 0
+    def __init__(self, mode: str = "whole", param: int = 0) -> None:
+        self.mode = mode
+        self.param = param
 
     def tear(self) -> Tear | None:
         if self.mode == "prefix":
@@ -115,17 +117,18 @@ class Landing:
 
 
 @mypyc_attr(allow_interpreted_subclasses=True)  # a recorder of the writes extends it
-@dataclass
 class PowerPlan:
     """The printer's supply, shared by every nonvolatile medium (card, EEPROM chips,
     flash): their writes are counted in one sequence, in the order they happen, and
     power fails during write number `cut_at` (1-based), which lands as `landing` says.
     With `log`, every write is also recorded as (device, address, bytes)."""
 
-    cut_at: int | None = None
-    landing: Landing = field(default_factory=Landing)
-    log: list | None = None
-    writes: int = 0
+    def __init__(self, cut_at: int | None = None, landing: Landing | None = None,
+                 log: list | None = None) -> None:
+        self.cut_at = cut_at
+        self.landing = Landing() if landing is None else landing
+        self.log = log
+        self.writes = 0
 
     def write(self, device: object, address: int, data: bytes) -> Landing | None:
         """Called by a device as a write reaches its medium; a Landing means the device

@@ -43,7 +43,6 @@ whole runs of interrupts can be done at once.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Final
 
 from robox.hardware.deposition import Deposition
@@ -92,7 +91,6 @@ SENSOR_STEPS: Final = tuple(_steps(axis, SENSOR_MM) for axis in range(len(STEPS_
 NOZZLE_STEPS: Final = tuple(_steps(axis, NOZZLE_MM) for axis in range(len(STEPS_PER_MM)))
 
 
-@dataclass
 class Filament:
     """A length of filament in an extruder's path, in that extruder's microsteps."""
 
@@ -100,8 +98,18 @@ class Filament:
     tip: i64
     tail: i64
 
+    def __init__(self, tip: i64, tail: i64) -> None:
+        self.tip = tip
+        self.tail = tail
 
-@dataclass
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Filament) and self.tip == other.tip \
+            and self.tail == other.tail
+
+    def __repr__(self) -> str:
+        return f"Filament(tip={self.tip}, tail={self.tail})"
+
+
 class ThermalModel:
     """A heated mass and the thermistor that reads it.
 
@@ -112,17 +120,16 @@ class ThermalModel:
     same one-second sample would flip the heater fully on and off every sample and hold
     the nozzle a few degrees off its target, which no real hot end does."""
 
-    name: str
-    gain: float  # degrees above ambient at full power
-    tau: float  # seconds
-    lag: float = 0.0  # seconds; 0: the thermistor reads the mass itself
-    ambient: float = 20.0
-    core: float = 20.0
-    sensed: float = 20.0
-    duty: float = 0.0  # 0..1
-    thermistor_ok: bool = True
-
-    def __post_init__(self) -> None:
+    def __init__(self, name: str, gain: float, tau: float, lag: float = 0.0) -> None:
+        self.name = name
+        self.gain = gain  # degrees above ambient at full power
+        self.tau = tau  # seconds
+        self.lag = lag  # seconds; 0: the thermistor reads the mass itself
+        self.ambient = 20.0
+        self.core = 20.0
+        self.sensed = 20.0
+        self.duty = 0.0  # 0..1
+        self.thermistor_ok = True
         # the decays over the last step's length (steps of one pass repeat: exp() once)
         self._step = -1.0
         self._step_tau = self._step_lag = 0.0
@@ -157,50 +164,59 @@ class ThermalModel:
         self.sensed = target + follow * fall + (self.sensed - target - follow) * self._lag_fall
 
 
-@dataclass
 class Machine:
     """Everything physical the firmware touches, besides the card, chips, flash and USB."""
 
-    x: int = 0
-    y: int = 0
-    za: int = 0
-    zb: int = 0
-    b: int = VALVE_REST_STEPS
-    gantry_rotation: bool = False  # ZA runs the other way (the firmware's gantry levelling)
-    # per extruder, indexed by axis (E, D; the other places are unused): lists, which the
-    # step interrupt's calls read natively compiled, where dicts are looked up
-    filament: list[Filament | None] = field(default_factory=lambda: [None] * 6)
-    # (packed vectors: compiled, the interrupt's steps add to them natively, where a
-    # list's item is a boxed int)
-    wheel_passed: vec[i64] = field(default_factory=lambda: vec[i64]([0] * 6))
-    wheel_base: list[bool] = field(default_factory=lambda: [False, False, False, True,
-                                                              False, False])
-    wheel_slipping: list[bool] = field(default_factory=lambda: [False] * 6)
-    stuck: dict[str, bool] = field(default_factory=dict)  # input name -> level it sticks at
-    extruded: vec[i64] = field(default_factory=lambda: vec[i64]([0] * 6))  # through a nozzle
-    # mm still to feed (a packed vector: compiled, hand_busy() on every pass reads it natively)
-    hand: vec[float] = field(default_factory=lambda: vec[float]([0.0] * 6))
-    heaters: dict[str, ThermalModel] = field(default_factory=lambda: {
-        "nozzle0": ThermalModel("nozzle0", gain=253.0, tau=71.0, lag=2.0),
-        "nozzle1": ThermalModel("nozzle1", gain=253.0, tau=71.0, lag=2.0),
-        "bed": ThermalModel("bed", gain=150.0, tau=280.0),
-        "ambient": ThermalModel("ambient", gain=40.0, tau=600.0)})
-    head_fan: float = 0.0
-    ambient_led: tuple[int, int, int] = (0, 0, 0)
-    button_led: tuple[int, int, int] = (0, 0, 0)
-    lid_closed: bool = True
-    button_pressed: bool = False
-    head_power: bool = True
-    head_shorted: bool = False
-    head_lights: bool = False
-    supply_24v: bool = True
-    hardware_revision: int = 2
-    motors_on: bool = False
-    # the head's build: how far (Z microsteps) nozzle 1's tip sits below nozzle 0's (the
-    # Z switch trips when the nozzle the valve has selected touches the bed)
-    nozzle1_drop: int = 0
-    # where plastic lands (robox.hardware.deposition), watched only where attached
-    deposition: Deposition | None = None
+    def __init__(self) -> None:
+        self.x = 0
+        self.y = 0
+        self.za = 0
+        self.zb = 0
+        self.b = VALVE_REST_STEPS
+        # ZA runs the other way (the firmware's gantry levelling)
+        self.gantry_rotation = False
+        # per extruder, indexed by axis (E, D; the other places are unused): lists, which
+        # the step interrupt's calls read natively compiled, where dicts are looked up
+        self.filament: list[Filament | None] = [None] * 6
+        # (packed vectors: compiled, the interrupt's steps add to them natively, where a
+        # list's item is a boxed int)
+        self.wheel_passed = vec[i64]([0] * 6)
+        self.wheel_base = [False, False, False, True, False, False]
+        self.wheel_slipping = [False] * 6
+        self.stuck: dict[str, bool] = {}  # input name -> level it sticks at
+        self.extruded = vec[i64]([0] * 6)  # through a nozzle
+        # mm still to feed (a packed vector: compiled, hand_busy() on every pass reads it
+        # natively)
+        self.hand = vec[float]([0.0] * 6)
+        self.heaters = {
+            "nozzle0": ThermalModel("nozzle0", gain=253.0, tau=71.0, lag=2.0),
+            "nozzle1": ThermalModel("nozzle1", gain=253.0, tau=71.0, lag=2.0),
+            "bed": ThermalModel("bed", gain=150.0, tau=280.0),
+            "ambient": ThermalModel("ambient", gain=40.0, tau=600.0)}
+        self.head_fan = 0.0
+        self.ambient_led = (0, 0, 0)
+        self.button_led = (0, 0, 0)
+        self.lid_closed = True
+        self.button_pressed = False
+        self.head_power = True
+        self.head_shorted = False
+        self.head_lights = False
+        self.supply_24v = True
+        self.hardware_revision = 2
+        self.motors_on = False
+        # the head's build: how far (Z microsteps) nozzle 1's tip sits below nozzle 0's
+        # (the Z switch trips when the nozzle the valve has selected touches the bed)
+        self.nozzle1_drop = 0
+        # where plastic lands (robox.hardware.deposition), watched only where attached
+        self.deposition: Deposition | None = None
+        # the heat models in a list, which advance() goes through (compiled, a list is
+        # walked natively where a dict's values are iterated through the generic protocol)
+        self._heater_list = list(self.heaters.values())
+        # and the two nozzles', read on every feed step (no lookups by name)
+        self._nozzles = (self.heaters["nozzle0"], self.heaters["nozzle1"])
+        # where each path's filament sensor and nozzle are (packed vectors: read natively)
+        self._sensor_steps = vec[i64](list(SENSOR_STEPS))
+        self._nozzle_steps = vec[i64](list(NOZZLE_STEPS))
 
     # ------------------------------------------------------------ motors
     def step(self, axis: int, n: int) -> None:
@@ -444,16 +460,6 @@ class Machine:
     def hand_busy(self) -> bool:
         hand = self.hand
         return hand[E] > 0 or hand[D] > 0
-
-    def __post_init__(self) -> None:
-        # the heat models in a list, which advance() goes through (compiled, a list is
-        # walked natively where a dict's values are iterated through the generic protocol)
-        self._heater_list = list(self.heaters.values())
-        # and the two nozzles', read on every feed step (no lookups by name)
-        self._nozzles = (self.heaters["nozzle0"], self.heaters["nozzle1"])
-        # where each path's filament sensor and nozzle are (packed vectors: read natively)
-        self._sensor_steps = vec[i64](list(SENSOR_STEPS))
-        self._nozzle_steps = vec[i64](list(NOZZLE_STEPS))
 
     def advance(self, seconds: float) -> None:
         for heater in self._heater_list:

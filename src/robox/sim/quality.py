@@ -23,7 +23,6 @@ import heapq
 import math
 import os
 from collections.abc import Iterator
-from dataclasses import dataclass
 from typing import BinaryIO, Final
 
 from robox.formats.float8 import short_decimal
@@ -38,16 +37,17 @@ EDGE_MM: Final = 0.5  # plastic this far beyond the plate's edge still counts as
 WORST: Final = 5
 
 
-@dataclass
 class Place:
-    kind: str  # "blob" or "starved"
-    layer: int
-    x: float
-    y: float
-    z: float
-    mm3: float  # the blob's volume, or the plastic a starved stretch lacks
-    length_mm: float = 0.0
-    line: int | None = None
+    def __init__(self, kind: str, layer: int, x: float, y: float, z: float, mm3: float,
+                 length_mm: float = 0.0) -> None:
+        self.kind = kind  # "blob" or "starved"
+        self.layer = layer
+        self.x = x
+        self.y = y
+        self.z = z
+        self.mm3 = mm3  # the blob's volume, or the plastic a starved stretch lacks
+        self.length_mm = length_mm
+        self.line: int | None = None
 
     def as_dict(self) -> dict:
         return {"kind": self.kind, "layer": self.layer, "line": self.line,

@@ -29,7 +29,6 @@ import math
 import os
 import tempfile
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from robox.errors import UsageError
@@ -58,37 +57,41 @@ JOB_ID = "simulated"
 HEATERS = ("nozzle0", "nozzle1", "bed", "ambient")
 
 
-@dataclass
 class Setup:
     """The virtual printer and the translation a simulation uses."""
 
-    head: str = HEAD_DEFAULT
-    filament_diameter: float = DEFAULT_DIAMETER
-    remaining_m: tuple[float, float] = (240.0, 240.0)  # on reel 0, reel 1
-    nozzle: int | None = None
-    macros: Path | None = None
-    raw: bool = False  # run the file as it is, even a slicer's
-    ejection: tuple[float, ...] | None = None  # mm3 per nozzle (None: the head's own)
-    valve: str = "automaker"  # how a slicer's file drives the valve: "automaker", "simple"
+    def __init__(self, head: str = HEAD_DEFAULT, filament_diameter: float = DEFAULT_DIAMETER,
+                 remaining_m: tuple[float, float] = (240.0, 240.0), nozzle: int | None = None,
+                 macros: Path | None = None, raw: bool = False,
+                 ejection: tuple[float, ...] | None = None, valve: str = "automaker") -> None:
+        self.head = head
+        self.filament_diameter = filament_diameter
+        self.remaining_m = remaining_m  # on reel 0, reel 1
+        self.nozzle = nozzle
+        self.macros = macros
+        self.raw = raw  # run the file as it is, even a slicer's
+        self.ejection = ejection  # mm3 per nozzle (None: the head's own)
+        # how a slicer's file drives the valve: "automaker", "simple"
+        self.valve = valve
 
 
-@dataclass
 class Report:
-    file: str
-    head: str
-    translation: dict | None
-    lines: int
-    lines_run: int = 0
-    completed: bool = False
-    print_time_s: float = 0.0
-    extruders: dict = field(default_factory=dict)
-    peak_c: dict = field(default_factory=dict)
-    extent_mm: dict | None = None
-    warnings: list[str] = field(default_factory=list)
-    errors: list[str] = field(default_factory=list)
-    deposition: dict | None = None
-    quality: Quality | None = None  # the record, for a picture (not in the dict)
-    quality_worst: list = field(default_factory=list)
+    def __init__(self, file: str, head: str, translation: dict | None, lines: int) -> None:
+        self.file = file
+        self.head = head
+        self.translation = translation
+        self.lines = lines
+        self.lines_run = 0
+        self.completed = False
+        self.print_time_s = 0.0
+        self.extruders: dict = {}
+        self.peak_c: dict = {}
+        self.extent_mm: dict | None = None
+        self.warnings: list[str] = []
+        self.errors: list[str] = []
+        self.deposition: dict | None = None
+        self.quality: Quality | None = None  # the record, for a picture (not in the dict)
+        self.quality_worst: list = []
 
     def as_dict(self) -> dict:
         return {"file": self.file, "head": self.head, "translation": self.translation,

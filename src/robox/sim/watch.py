@@ -11,7 +11,6 @@ the report.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Any, Final
 
 # (Firmware imported at run time, not only for the type checker: the compiled module
@@ -31,28 +30,27 @@ VALVE_SHUT: Final = 0.05
 EPSILON_MM: Final = 1e-3
 
 
-@dataclass
 class Watch(MoveWatcher):
     """What the queued moves did, and the heaters' peaks and the job's furthest line
     over the passes."""
 
-    fw: Firmware
-    has_valve: bool
-    # (packed vectors: compiled, read and written natively at every queued move, where a
-    # list's item is a boxed float)
-    low: vec[float] = field(default_factory=lambda: vec[float]([math.inf] * 3))
-    high: vec[float] = field(default_factory=lambda: vec[float]([-math.inf] * 3))
-    outside_lines: list[int] = field(default_factory=list)
-    clamped_lines: list[int] = field(default_factory=list)
-    shut_lines: list[int] = field(default_factory=list)
-    shut_mm: vec[float] = field(default_factory=lambda: vec[float]([0.0, 0.0]))  # per reel
-    asked: vec[float] = field(default_factory=lambda: vec[float]([math.nan, math.nan]))  # X, Y
-
-    start_lines: int = 0  # the job's start sequence: its plastic is not judged
-    deposition: Deposition | None = None
-    heaters: list[ThermalModel] = field(default_factory=list)  # read at every pass
-    peak: vec[float] = field(default_factory=lambda: vec[float]([]))  # each heater's peak reading
-    reached: int = 0  # the furthest line the job came to
+    def __init__(self, fw: Firmware, has_valve: bool) -> None:
+        self.fw = fw
+        self.has_valve = has_valve
+        # (packed vectors: compiled, read and written natively at every queued move,
+        # where a list's item is a boxed float)
+        self.low = vec[float]([math.inf] * 3)
+        self.high = vec[float]([-math.inf] * 3)
+        self.outside_lines: list[int] = []
+        self.clamped_lines: list[int] = []
+        self.shut_lines: list[int] = []
+        self.shut_mm = vec[float]([0.0, 0.0])  # per reel
+        self.asked = vec[float]([math.nan, math.nan])  # X, Y
+        self.start_lines = 0  # the job's start sequence: its plastic is not judged
+        self.deposition: Deposition | None = None
+        self.heaters: list[ThermalModel] = []  # read at every pass
+        self.peak = vec[float]([])  # each heater's peak reading
+        self.reached = 0  # the furthest line the job came to
 
     def attach(self) -> None:
         self.fw.position.watcher = self
