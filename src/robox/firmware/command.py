@@ -135,6 +135,13 @@ def put_hex(value: int, digits: int) -> bytes:
 class Command:
     """Robox and Pronterface protocols on the USB link."""
 
+    # (scalars set at power-up, in initialise; the defaults only spare the compiled
+    # code a test at every read of whether the attribute was ever set)
+    buffer: bytes = b""
+    robox_mode: bool = False
+    last_ack_report: float = 0.0
+    deaf: bool = False
+
     def __init__(self, firmware: Firmware):
         self.fw = firmware
 

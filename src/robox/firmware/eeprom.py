@@ -131,6 +131,10 @@ def _given_up(state: EepromState, chip: EepromChip | None) -> bool:
 class Eeproms:
     """The firmware object that owns the three EEPROMs."""
 
+    # (set in initialise; the default only spares the compiled code a test at every
+    # read of whether it was ever set)
+    update_due: float = 0.0
+
     def __init__(self, bus: EepromBus, clock: SimClock, errors: ErrorFlags):
         self.bus = bus
         self.clock = clock

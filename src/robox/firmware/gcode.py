@@ -136,6 +136,24 @@ def is_reporting(text: bytes) -> bool:
 
 
 class Job:
+    # (scalars set at power-up, in initialise; the defaults only spare the compiled
+    # code a test at every read of whether the attribute was ever set)
+    execute_buffer: bytes = b""
+    job_buffer: bytes = b""
+    line_number: int = 0
+    abort_flag: bool = False
+    pause: int = 0
+    parked: bool = False
+    running: bool = False
+    idle_since: float = 0.0
+    current: Waits | Resumable | None = None
+    waiting: Wait | None = None
+    _taking: i64 = 0
+    _taking_job: bool = False
+    lines_executed: int = 0
+    jobs_completed: int = 0
+    slip_count_since: float = 0.0
+
     def __init__(self, firmware: Firmware):
         self.fw = firmware
 
@@ -151,11 +169,11 @@ class Job:
         self.parked = False
         self.running = False
         self.idle_since = now
-        self.current: Waits | Resumable | None = None  # the job-level step under way
-        self.waiting: Wait | None = None
+        self.current = None  # the job-level step under way
+        self.waiting = None
         # a buffered line's own routine run as `current` (see _line_step): the bytes its
         # end takes off a buffer (0: none), and which (True: the job's)
-        self._taking: i64 = 0
+        self._taking = 0
         self._taking_job = False
         self.lines_executed = 0
         self.jobs_completed = 0

@@ -105,6 +105,20 @@ def time_to_target(target: float, now: float, ambient: float,
 
 
 class Heaters:
+    # (scalars set at power-up, in initialise; the defaults only spare the compiled
+    # code a test at every read of whether the attribute was ever set)
+    conversion_started: float = 0.0
+    conversion_ready: bool = False
+    force_ambient_fan: bool = False
+    why_are_we_waiting: int = NOT_WAITING
+    timing_pause: bool = False
+    pause_since: float = 0.0
+    head_fan_requested: int = 0
+    head_fan_duty: int = 0
+    bed_got_to: float = 0.0
+    nozzle_forcing: bool = False
+    nozzles_forced_off: bool = False
+
     def __init__(self, firmware: Firmware):
         self.fw = firmware
 

@@ -166,17 +166,29 @@ def _holds(blk: Block, a: i64, s: i64) -> bool:
 
 
 class Motion:
-    # the interrupt's integers: native ones when compiled (robox.native)
-    speed_x4k: i64
-    timer_period: i64
-    max_period_for_ramping: i64
-    max_speed_step: i64
-    buffer_in: i64
-    buffer_out: i64
-    next_tick: i64
-    last_tick: i64
-    interrupts: i64
-    switch_abandon_counter: i64
+    # the interrupt's integers: native ones when compiled (robox.native). Their values
+    # are set at power-up (initialise); the defaults here only let the compiled code read
+    # them without first asking whether they were ever set (an attribute assigned outside
+    # __init__ and without a default costs that test at every read)
+    speed_x4k: i64 = 0
+    timer_period: i64 = 0
+    max_period_for_ramping: i64 = 0
+    max_speed_step: i64 = 0
+    buffer_in: i64 = 0
+    buffer_out: i64 = 0
+    next_tick: i64 = 0
+    last_tick: i64 = 0
+    interrupts: i64 = 0
+    switch_abandon_counter: i64 = 0
+    queued_length: i64 = 0
+    holdoff_since: float = 0.0
+    switch_select: int = 0
+    slip_select: bool = False
+    switch_invert: int = 0
+    filament_slip: bool = False
+    what: int = NORMAL
+    active: bool = False
+    z_top_counter: int = 0
     acc: vec[i64]  # the step accumulators, per axis
     _slip_inputs: vec[float]
     _slip_thresholds: vec[i64]
@@ -204,7 +216,7 @@ class Motion:
         self.block = [Block() for _ in range(BUFFER_SIZE)]
         # the lengths of the queued blocks added up, kept as they are queued and counted
         # down (is_buffer_ready_for_more adds them up each time it asks)
-        self.queued_length: i64 = 0
+        self.queued_length = 0
         # the steps (16.16, their sizes) the queued blocks after the one at buffer_out
         # make on each drive (E, D), kept as blocks are queued and begun: none of their
         # lengths changes before it is begun (passes_ahead adds the one under way)

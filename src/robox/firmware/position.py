@@ -85,6 +85,18 @@ class Position:
     diameter: vec[float]
     multiplier: vec[float]
     extruded_mm: vec[float]  # added to at every extruding line
+    # (scalars set at power-up, in initialise; the defaults only spare the compiled
+    # code a test at every read of whether the attribute was ever set)
+    feed_rate: float = 0.0
+    feed_multiplier_select: int = 0
+    tool: int = 0
+    unpark_tool: int = 0
+    relative: bool = False
+    unpark_relative: bool = False
+    unpark_feed_rate: float = 0.0
+    z_made_safe: bool = False
+    z_washout: float = 0.0
+    what: int = NORMAL
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware

@@ -444,6 +444,13 @@ def sequence(name: str, kind: str) -> list[bytes]:
 class Translator:
     """Feed lines (bytes, without their ends) to `run`; it yields the job's lines."""
 
+    # (set in __init__ after its calls; the defaults spare the compiled code a test
+    # at every read of whether they were ever set)
+    area_e: float = 0.0
+    area_d: float = 0.0
+    volume_e: float = 0.0
+    volume_d: float = 0.0
+
     def __init__(self, options: Options, detected: Detected):
         self.o = options
         self.d = detected

@@ -135,7 +135,6 @@ class Deposition:
         # per feed, its nozzle whose needle is off its seat (-1: all shut): asked at every
         # feed step, it changes only when a needle moves (_note_openings)
         self._open_of = vec[i64]([-1] * (D_AXIS + 1))
-        self._note_openings()
         self.mm3_per_step = vec[float]([0.0] * (D_AXIS + 1))
         for axis, d in ((E_AXIS, self.diameters_mm[0]), (D_AXIS, self.diameters_mm[1])):
             self.mm3_per_step[axis] = math.pi * d * d / 4.0 / E_STEPS
@@ -159,14 +158,17 @@ class Deposition:
         self._lx0 = self._ly0 = self._lx1 = self._ly1 = self._lz = 0.0
         self._ldep = self._ldrv = 0.0
         self._lnozzle = self._lpath = 0
-        # the columns, in COLUMNS' order: packed vectors in attributes of their own
-        # (compiled, an append is native; an array's is a generic method call, and a
-        # vector kept in a list or dict is boxed)
-        self._empty_columns()
         self._feed_axis = E_AXIS
         self._feed_mm3 = 0.0
         self.slipped_steps = 0
         self.released_mm3 = vec[float]([0.0] * nozzles)  # plastic that has left each nozzle
+        # (the methods last: compiled, an attribute assigned before self is first passed
+        # on is known to be set, and read without a test)
+        self._note_openings()
+        # the columns, in COLUMNS' order: packed vectors in attributes of their own
+        # (compiled, an append is native; an array's is a generic method call, and a
+        # vector kept in a list or dict is boxed)
+        self._empty_columns()
 
     # ------------------------------------------------------------ machine calls
     def attach(self, machine: Machine) -> None:
