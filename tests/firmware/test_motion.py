@@ -869,6 +869,9 @@ def reference_ramp(length, speed, end_speed, a, s, period, maxp, tick, limit, ca
 @example(length=2, speed=5, end_speed=0, a=1, start=5, cap=None, limit=3 << 32)
 # slowing down at a held root, the interrupt that passes the limit ends a run part-way
 @example(length=3000, speed=0xFFFF, end_speed=0, a=40, start=200, cap=None, limit=60_000)
+# speeding up from the floor in the loop that leaves the root out, to the cruise speed,
+# then slowing down by the root to the block's end
+@example(length=3000, speed=300, end_speed=0, a=4, start=2, cap=None, limit=3 << 32)
 def test_the_ramp_loop_gives_the_interrupts_speeds_one_by_one(length, speed, end_speed, a,
                                                               start, cap, limit):
     """The tight ramp loop (the model leaves out the square root while it cannot be the

@@ -1023,6 +1023,8 @@ class Motion:
         holding = False
         lowest: i64 = 0
         k: i64
+        # (every interrupt speeds up where the speed is not capped: see the loop's own)
+        speeding = a > 0 and maxp > 0
         while True:
             if holding:
                 k = length - lowest
@@ -1042,6 +1044,44 @@ class Motion:
                     rooted = (capped << 1) * a + c
                     if count >= most or tick > end:
                         break
+            elif speeding and floor_speed <= s < top \
+                    and (length > sure or (unwrapped and rooted >= 0)) \
+                    and period * s <= 0x10000000 < (period + 1) * s:
+                # Speeding up while neither the cruise speed nor the square root holds
+                # the speed back, in a loop of its own: each interrupt adds to the speed,
+                # so the period can only fall (the test for a rise is left out), and the
+                # root, once the length is short of `sure`, is followed down as the
+                # radicand falls. It ends before the interrupt the cruise speed or the
+                # root would hold back, or one that needs a root taken afresh: the loop
+                # below takes that one.
+                ended = False
+                while True:
+                    n = s + (period if period < maxp else maxp) * a
+                    if n >= top:
+                        break
+                    if length - 1 < sure:
+                        if rooted < 0 or not unwrapped or length - 1 > 0x00800000:
+                            break
+                        x = ((length - 1) << 1) * a + c
+                        while root * root > x:
+                            root -= 1
+                        rooted = x
+                        if root << 14 < n:
+                            break
+                    length -= 1
+                    s = n
+                    if period * s > 0x10000000:
+                        period -= 1
+                        if period * s > 0x10000000:
+                            period = 0x10000000 // s
+                    last = tick
+                    tick += period
+                    count += 1
+                    if count >= most or tick > end:
+                        ended = True
+                        break
+                if ended:
+                    break
             length -= 1
             n = s + (period if period < maxp else maxp) * a
             if length < sure:
