@@ -109,6 +109,12 @@ def upload(file_id: bytes, data: bytes) -> list[bytes]:
     return frames
 
 
+def printing_while_uploading(file_id: bytes, data: bytes) -> list[bytes]:
+    """An upload that is a job (0x97), the job run after its first chunk (0x94)."""
+    frames = upload(file_id, data)
+    return [b"\x97" + file_id, frames[1], b"\x94" + file_id, *frames[2:]]
+
+
 HOST = [b"\xb0", *upload(b"MACRO0000000003\0", bytes(range(256)) * 9), b"\xb6",
         b"\x95" + b"0005M105\n", b"\x93", b"\xb0"]
 
@@ -134,6 +140,12 @@ CASES = {
     # a queued M109 S0 waits on the nozzle: the line looks again at the very next pass,
     # the one in which the status request is still crossing (mixed session 231's bytes)
     "a line waiting": (lambda m: m, None, [None, b"\x950012M109 S0 ; comment\r", b"\xb0"]),
+    # a job's M109 waits while the nozzle heats, the rest of the job's own upload
+    # crosses in and the chips load: the line looks at its heater at the first pass and
+    # then at each sample, as the passes that carry the packets would find it still short
+    "a job heating": (lambda m: m, None, [
+        *printing_while_uploading(b"JOBAAAA000000002",
+                                  b"M104 S60\nM109\n" + b"G4 P10\n" * 400), b"\xb0"]),
     # a job started and ended: the hours counter counts its passes from the one that
     # started it (the run-job frame crossed in light passes), and writes them to flash
     "a job's hours": (lambda m: m, None, [None, *upload(b"JOBAAAA000000001",

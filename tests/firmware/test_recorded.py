@@ -68,6 +68,16 @@ def test_m104_s0_turns_off_but_keeps_the_target_and_m109_s_is_ignored(printer):
     assert status[40:41] + status[49:57] == b"0200.0000"
 
 
+def test_m109_with_the_nozzle_off_has_ended_by_the_next_command(printer):
+    # recorded (mixed, seed 231, steps 10-11): the wait is taken, then a status report
+    # asked for at once shows no line under way and nothing waited for; the line looks
+    # at its heater at the pass after it begins to wait, while the report's packet is
+    # on its way in
+    assert robox(printer, b"\x950012M109 S0 ; comment\r") == b"\xe70000"
+    status = robox(printer, b"\xb0")
+    assert status[17:27] == b"0000000000" and status[132:134] == b"00"
+
+
 def test_bed_and_ambient_targets_clamp(printer):
     # recorded 0xc3 with 999 for the bed targets and 100 for ambient (seed 80, step 10)
     targets = b"35.000000.000000200.0000210.5000999.0000999.0000100.0000"

@@ -148,6 +148,7 @@ class Job:
     idle_since: float = 0.0
     current: Waits | Resumable | None = None
     waiting: Wait | None = None
+    heater_looked: bool = False
     _taking: i64 = 0
     _taking_job: bool = False
     lines_executed: int = 0
@@ -171,6 +172,9 @@ class Job:
         self.idle_since = now
         self.current = None  # the job-level step under way
         self.waiting = None
+        # whether the heater the line waits on has been looked at since it began to
+        # wait: it yielded a wait on it again (see Firmware._only_heater_awaited)
+        self.heater_looked = False
         # a buffered line's own routine run as `current` (see _line_step): the bytes its
         # end takes off a buffer (0: none), and which (True: the job's)
         self._taking = 0
@@ -257,7 +261,10 @@ class Job:
     def runnable(self) -> bool:
         """True when the next pass has something to do at once (the clock must not jump)."""
         if self.current is not None:
-            return self.waiting is None or self.waiting.next_pass()
+            wait = self.waiting
+            # (a heater's first look is at the next pass: see Firmware._only_heater_awaited)
+            return wait is None or wait.next_pass() or \
+                (wait.heater is not None and not self.heater_looked)
         if self.abort_flag:
             return self.fw.motion.idle()  # the abort ends once motion has stopped
         if line_length(self.execute_buffer):
@@ -429,6 +436,7 @@ class Job:
 
     def _start(self, step: Waits | Resumable) -> None:
         self.current = step
+        self.waiting = None  # (what the last line waited for, if it left it: not this one's)
         if isinstance(step, Resumable):
             self.waiting = READY_WAIT  # (it has run up to its wait: see _line_step)
             return
@@ -437,6 +445,7 @@ class Job:
     def _drive(self) -> None:
         step = self.current
         assert step is not None
+        before = self.waiting
         waiting: Wait | None
         if isinstance(step, Resumable):
             waiting = None if step.resume() else READY_WAIT
@@ -452,6 +461,8 @@ class Job:
                 self._taking = 0
                 self._line_done(self._taking_job, taking)
         self.waiting = waiting
+        self.heater_looked = waiting is not None and waiting.heater is not None \
+            and before is not None and before.heater is not None
 
     def _buffer_line(self, job: bool, n: int) -> Waits:
         """The first line (`n` bytes) of the job buffer or of the execute buffer, run and

@@ -151,9 +151,11 @@ class Firmware:
     def _light_usb(self) -> bool:
         # While a job runs, its line may start, end or look again at any pass: the
         # passes a transfer crosses in are light only while that line waits on motion
-        # alone (they end with the frame that lands it, and the pass that takes it, a
-        # pause say, is whole; the hours counter is brought up to date before it).
-        return self._usb_coming() and (not self.job.running or self._only_motion_awaited())
+        # alone, or on a heater alone (they end with the frame that lands it, and the
+        # pass that takes it, a pause say, is whole; the hours counter is brought up to
+        # date before it).
+        return self._usb_coming() and (not self.job.running or self._only_motion_awaited()
+                                       or self._only_heater_awaited())
 
     def _usb_coming(self) -> bool:
         """Host bytes on their way: delivered and not taken, or queued for a read that
@@ -176,7 +178,7 @@ class Firmware:
         return ((received > 0 and received > command.inert_bytes() and not command.deaf)
                 or line_ready
                 or (self._usb_coming() and self.job.running
-                    and not self._only_motion_awaited())
+                    and not self._only_motion_awaited() and not self._only_heater_awaited())
                 or self.heaters.conversion_ready
                 or command.pending_after_reply is not None or self.job.runnable()
                 or self.reset_requested or self.hours.due())
@@ -189,6 +191,20 @@ class Firmware:
                 and self.job.current is not None and wait is not None
                 and wait.motion is not None and wait.until is None and wait.heater is None
                 and self.command.waiting is None)
+
+    def _only_heater_awaited(self) -> bool:
+        """Motion has stopped and all that waits is a line waiting on a heater alone (an
+        M109 or M190, say: no time, no motion) that has looked at it once and found it
+        not there yet. Such a line looks again only at the passes plan() stops at (a
+        heater's step, a conversion), as it does with no light work: what it looks at
+        changes only at a heater's sample, at a host's command (the frame that brings it
+        ends a light run) or at an EEPROM step that is not inert (which ends one too).
+        Its first look is at the pass after it began to wait, as the firmware's."""
+        job = self.job
+        wait = job.waiting
+        return (job.heater_looked and job.current is not None and wait is not None
+                and wait.heater is not None and wait.motion is None and wait.until is None
+                and self.command.waiting is None and self.motion.empty())
 
     def next_step(self, limit: float | None = None) -> float:
         """How far the clock may move before the next pass (see `plan`)."""
@@ -223,12 +239,13 @@ class Firmware:
             if not self.light_passes or not skip or self.hw.machine.hand_busy() \
                     or self.command.line is not None:
                 return 1
-            if self.motion.empty() and self.job.current is None:
+            if self.motion.empty() and (self.job.current is None
+                                        or self._only_heater_awaited()):
                 light = True
             elif self._only_motion_awaited():
                 stepping = True  # motion runs ahead while the EEPROMs' steps are inert
             else:
-                # a line part-way (waiting on a heater, say) looks again at every pass
+                # a line part-way (waiting on a time, say) looks again at every pass
                 return 1
         now = self.clock.now
         # the nearest moment anything waits for (compared one by one: compiled, native
