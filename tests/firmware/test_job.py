@@ -5,6 +5,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robox.firmware.gcode import IDLE_ABORT_S, IDLE_PAUSE_S, line_length
+from robox.firmware.main import PASS_S
 from robox.formats.protocol import JOB_LINE_LIMIT, ErrorBit
 from robox.native import compiled_modules
 from tests.firmware.test_protocol import status_fields
@@ -123,6 +124,20 @@ def test_a_buffered_line_run_as_the_step_under_way_leaves_its_buffer_as_the_gene
     # and the run covered what it is for: lines waiting, host lines, the abort
     assert any(not s[5] for s in direct) and any(s[4] for s in direct)
     assert direct[-1][6] is False and any(s[6] for s in direct)
+
+
+def test_a_heater_wait_looks_at_the_pass_after_it_begins(wire):
+    """heaters.c waits `do { do_everything_else(); look } while (...)`: with the nozzle
+    and the bed off, an M109 or M190 answers one pass later than an M104, not at the
+    next moment the loop would stop for anyway (a heater's step, a quarter second on)."""
+    def answered(text: bytes) -> float:
+        start = wire.fw.clock.now
+        assert wire.line(text) == b"ok\r\n"
+        return wire.fw.clock.now - start
+
+    plain = answered(b"M104 S0\n")
+    for text in (b"M109 S0\n", b"M109\n", b"M190\n"):
+        assert answered(text) == pytest.approx(plain + PASS_S)
 
 
 def test_run_job_restarts_a_running_job_and_an_unknown_id_ends_it(wire):

@@ -141,6 +141,7 @@ class Command:
     robox_mode: bool = False
     last_ack_report: float = 0.0
     deaf: bool = False
+    heater_looked: bool = False
 
     def __init__(self, firmware: Firmware):
         self.fw = firmware
@@ -156,6 +157,9 @@ class Command:
         self.line: Waits | None = None  # a line running inside this object
         self.line_reply: Callable[[bytes], None] = _no_reply  # how its response is sent
         self.waiting: Wait | None = None
+        # whether the heater that line waits on has been looked at since it began to wait
+        # (as Job.heater_looked)
+        self.heater_looked = False
         self.deaf = False
         link = self.fw.hw.usb
         self.downs_seen = link.downs  # the link's disconnects this object has seen
@@ -268,7 +272,11 @@ class Command:
         try:
             line = self.line
             assert line is not None
-            self.waiting = next(line)
+            before = self.waiting
+            waiting = next(line)
+            self.waiting = waiting
+            self.heater_looked = waiting.heater is not None and before is not None \
+                and before.heater is not None
             return False
         except StopIteration as done:
             self.line = None

@@ -171,8 +171,11 @@ class Firmware:
     def _busy_apart_from_light(self) -> bool:
         usb = self.hw.usb
         command = self.command
-        line_ready = command.line is not None and (command.waiting is None
-                                                   or command.waiting.next_pass())
+        wait = command.waiting
+        # (a line's first look at a heater is at the next pass: see _only_heater_awaited)
+        line_ready = command.line is not None and (
+            wait is None or wait.next_pass()
+            or (wait.heater is not None and not command.heater_looked))
         # (comparisons and bools throughout: compiled, nothing is boxed to be tested)
         received = usb.received
         return ((received > 0 and received > command.inert_bytes() and not command.deaf)
