@@ -36,7 +36,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Final
 
-from robox.firmware.gcode import Wait, Waits, is_reporting
+from robox.firmware.gcode import Wait, Waits, heater_looked, is_reporting
 from robox.formats.eeprom import EepromIndex
 from robox.formats.float8 import skip_blanks
 from robox.formats.protocol import PAUSE_MASK, PAUSE_MASK_CONNECTED, ErrorBit
@@ -275,8 +275,7 @@ class Command:
             before = self.waiting
             waiting = next(line)
             self.waiting = waiting
-            self.heater_looked = waiting.heater is not None and before is not None \
-                and before.heater is not None
+            self.heater_looked = heater_looked(before, waiting)
             return False
         except StopIteration as done:
             self.line = None

@@ -63,6 +63,15 @@ class Wait:
         return f"Wait(motion={self.motion!r}, until={self.until!r}, heater={self.heater!r})"
 
 
+def heater_looked(before: Wait | None, after: Wait | None) -> bool:
+    """Whether a line that was resumed from a wait on a heater (`before`) and waits on one
+    again (`after`) has looked at its heater since it began to wait: it found it short.
+    (A line's first wait on a heater comes before any look: heaters.c's waits are
+    `do { do_everything_else(); look } while (...)`.)"""
+    return after is not None and after.heater is not None \
+        and before is not None and before.heater is not None
+
+
 # A routine that may wait, as a generator: it yields what it waits for while the firmware
 # would spin do_everything_else(), and may return a value when done.
 Waits = Generator[Wait, None, Any]
@@ -461,8 +470,7 @@ class Job:
                 self._taking = 0
                 self._line_done(self._taking_job, taking)
         self.waiting = waiting
-        self.heater_looked = waiting is not None and waiting.heater is not None \
-            and before is not None and before.heater is not None
+        self.heater_looked = heater_looked(before, waiting)
 
     def _buffer_line(self, job: bool, n: int) -> Waits:
         """The first line (`n` bytes) of the job buffer or of the execute buffer, run and
