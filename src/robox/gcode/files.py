@@ -84,13 +84,9 @@ def _write_job(lines: Iterable[bytes], target: str | os.PathLike,
     written."""
     written = Written()
     with replacing(target) as temp, open(temp, "wb") as out:
-        batch: list[bytes] = []
-        for line in lines:
-            batch.append(line)
-            if len(batch) >= 4096:
-                written.write(out, batch, end)
-                batch.clear()
-        if batch:
+        source = iter(lines)
+        # (batches taken by islice: the per-line loop runs in C, not in this frame)
+        while batch := list(itertools.islice(source, 4096)):
             written.write(out, batch, end)
     return written
 

@@ -276,6 +276,7 @@ class VirtualPrinter:
             if chip is not None:
                 chip.clock = self.hw.clock
         self._saved_writes = [c.writes if c else 0 for c in bus.sockets]
+        self._saved_mark = (bus.writes(), bus.inserts)
         # dumps open to write in place
         self._chip_dumps: dict[int, FileStorage] = dict(self._dumps_at_power_up)
         self._filament_loaded = False
@@ -383,7 +384,12 @@ class VirtualPrinter:
         by a rename."""
         if self.state_dir is None:
             return
-        for index, chip in enumerate(self.hw.eeprom_bus.sockets):
+        # (called after every run: nothing written and no chip swapped, nothing to look at)
+        bus = self.hw.eeprom_bus
+        mark = (bus.writes(), bus.inserts)
+        if mark == self._saved_mark:
+            return
+        for index, chip in enumerate(bus.sockets):
             if chip is not None and chip.writes != self._saved_writes[index]:
                 data = bytes(chip.data)
                 dump = self._chip_dumps.get(index)
@@ -394,6 +400,7 @@ class VirtualPrinter:
                     dump = self._chip_dumps[index] = self._open(path)
                 dump.write(0, data)
                 self._saved_writes[index] = chip.writes
+        self._saved_mark = mark
 
     def save_filament(self) -> None:
         """Record where the filament in the feeds now is (a state directory's printer

@@ -172,17 +172,24 @@ class VirtualRoboxBackend(usb.backend.IBackend):
         if intf not in self.claimed:
             raise usb.core.USBError("Interface not claimed", -3, errno.EACCES)
 
+    def _bulk_link(self, intf: int):
+        """The printer's USB link, for a bulk transfer on `intf` (the checks of
+        _check_connected and _claimed, with one look at the link: every transfer
+        makes them)."""
+        usb_link = self.printer.usb
+        if not usb_link.connected:
+            self._check_connected()
+        if intf not in self.claimed:
+            self._claimed(intf)
+        return usb_link
+
     def bulk_write(self, dev_handle, ep, intf, data, timeout):
-        self._check_connected()
-        self._claimed(intf)
         payload = bytes(data)
-        self.printer.usb.host_write(payload)
+        self._bulk_link(intf).host_write(payload)
         return len(payload)
 
     def bulk_read(self, dev_handle, ep, intf, buff, timeout):
-        self._check_connected()
-        self._claimed(intf)
-        usb_link = self.printer.usb
+        usb_link = self._bulk_link(intf)
         if not usb_link.reply_waiting:
             seconds = (timeout or 1000) / 1000.0
             # a USB host sees a reply as soon as it is sent, even mid-line
