@@ -118,8 +118,8 @@ PROFILE_GENERATE_LINK = ["-fprofile-generate"]
 PROFILE_USE = ["-fprofile-use", "-fprofile-partial-training", "-Wno-missing-profile"]
 PROFILE_USE_LINK = ["-fprofile-use", "-fprofile-partial-training"]
 # what the training run imports besides the package and mypyc's runtime (the commands
-# it runs are robox-cli's: click; the upload goes through pyusb's API; crcmod checks)
-TRAINING = ["click>=8.1", "pyusb>=1.2", "crcmod>=1.7"]
+# it runs are robox-cli's: click; the upload goes through pyusb's API)
+TRAINING = ["click>=8.1", "pyusb>=1.2"]
 TRAINER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "robox_train.py")
 TRAINING_TIMEOUT_S = 900
 NATIVE_BUILD = "native_build.json"  # in the package: how its core was optimised

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import re
 import struct
+import zlib
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Final
-
-import crcmod
 
 from robox.errors import NotFoundError, UsageError
 from robox.formats import float8
@@ -25,8 +24,13 @@ BANK_SIZE: Final = 196  # the data and its CRC-32
 BANK_ADDRESSES = (0x000, 0x100)
 CRC_INIT = 0x535E01FE
 
-#: Reflected CRC-32 (0x04C11DB7), initial register 0x535E01FE, no final XOR.
-eeprom_crc = crcmod.mkCrcFun(0x104C11DB7, initCrc=CRC_INIT, rev=True, xorOut=0)
+
+def eeprom_crc(data: bytes) -> int:
+    """Reflected CRC-32 (0x04C11DB7), initial register 0x535E01FE, no final XOR.
+    zlib's CRC-32 is the same polynomial, reflected, with the register and the result
+    inverted: its running value for this register is the register inverted, and the
+    result is inverted back."""
+    return zlib.crc32(data, CRC_INIT ^ 0xFFFFFFFF) ^ 0xFFFFFFFF
 
 
 class EepromIndex(IntEnum):
