@@ -17,7 +17,7 @@ class EepromBus:
                  reel1: EepromChip | None = None, mux_present: bool = False):
         self.sockets: list[EepromChip | None] = [head, reel0, reel1]
         self.mux_present = mux_present
-        self.inserts = 0  # chips put in or taken out since power-up (a count)
+        self.inserts = 0  # how many times insert() has put a chip in or taken one out
 
     def chip(self, index: int) -> EepromChip | None:
         if index == 2 and not self.mux_present:  # reel 1 (EepromIndex.REEL1)
