@@ -9,6 +9,7 @@ only the command part, so everything after `;` or inside `( )` is dropped, and b
 
 from __future__ import annotations
 
+import itertools
 import re
 from collections.abc import Iterable, Iterator
 from typing import Final
@@ -38,18 +39,28 @@ def code_part(raw: bytes) -> bytes:
 
 
 def split_lines(chunks: Iterable[bytes]) -> Iterator[bytes]:
-    """Lines (without their ends) from a stream of byte chunks; CR, LF or CRLF."""
+    """Lines (without their ends) from a stream of byte chunks; CR, LF or CRLF. (The
+    lines of each chunk are handed on by itertools.chain: a line costs a step of its
+    list, not a generator's resumption.)"""
+    return itertools.chain.from_iterable(_chunk_lines(chunks))
+
+
+def _chunk_lines(chunks: Iterable[bytes]) -> Iterator[list[bytes]]:
+    """split_lines's lines, a list of them for each chunk."""
     pending = b""
     for chunk in chunks:
         pending += chunk
         held = pending[-1:] == b"\r"  # its LF may start the next chunk
         text = pending[:-1] if held else pending
-        *complete, rest = text.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n")
+        complete = text.splitlines()  # (bytes: at LF, CR and CRLF alone)
+        rest = b""
+        if complete and text[-1] != 10 and text[-1] != 13:  # its end is still to come
+            rest = complete.pop()
         pending = rest + (b"\r" if held else b"")
-        yield from complete
+        yield complete
     pending = pending.rstrip(b"\r")
     if pending:
-        yield pending
+        yield [pending]
 
 
 def prepare_job(text: bytes) -> bytes:
