@@ -71,7 +71,9 @@ def test_random_robox_streams_never_break_the_model(parts):
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.binary(max_size=60).filter(lambda b: all(c < 0x80 for c in b)),
+# (7-bit bytes made as such: a filter on random bytes throws away nearly every part of
+# more than a few bytes, and Hypothesis's health check fails the test at random)
+@given(st.lists(st.binary(max_size=60).map(lambda raw: bytes(b & 0x7F for b in raw)),
                 max_size=15))
 def test_random_pronterface_text_is_answered_or_ignored(parts):
     wire = Wire(VirtualPrinter())
