@@ -21,10 +21,12 @@ drops what its receiver held when it sees the link has been down (Command.mainta
 
 from __future__ import annotations
 
+from typing import Final
+
 from robox.errors import RoboxError
 from robox.hardware.clock import PassCondition
 
-PACKET_SIZE = 64
+PACKET_SIZE: Final = 64
 
 
 class LinkDown(RoboxError):
