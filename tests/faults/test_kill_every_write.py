@@ -49,7 +49,7 @@ from tests.faults.printer_campaign import job_bytes
 
 CARD_BLOCKS = 4096  # a 2 MiB card: small enough to write out at every kill point
 CHIP_FILES = {"head.eeprom": EepromIndex.HEAD, "reel0.eeprom": EepromIndex.REEL0}
-JOB = job_bytes(300)  # heated, extruding: it books filament and hours as it prints
+JOB = job_bytes(600)  # heated, extruding: it books filament and hours as it prints
 FIRST = b"G28 X Y\r" * 200
 
 

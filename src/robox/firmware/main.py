@@ -444,27 +444,20 @@ class Firmware:
         return self.busy() or job.running or job.current is not None or \
             not self.motion.idle() or self.heaters.any_on()
 
-    def run_for_host(self, timeout: float, chip_written: Callable[[], None] | None = None,
-                     max_passes: int = 2000, reader_margin: int = 0) -> int:
+    def run_for_host(self, timeout: float, max_passes: int = 2000,
+                     reader_margin: int = 0) -> int:
         """Passes for a host at the end of a live link: at least one, then on while the
         printer is working, until `timeout` simulated seconds pass, a reply waits for the
         host, or `max_passes` have run (so the link is looked at often enough); none when
-        `timeout` is not positive. `chip_written` is called after each pass in which an
-        EEPROM chip took a write (so that its dump can follow it). With `reader_margin`,
-        the run also ends once a job reading its own upload has fewer than that many
-        stored bytes left to read, while nothing of the host's is on its way in. The
-        number of passes run."""
+        `timeout` is not positive. With `reader_margin`, the run also ends once a job
+        reading its own upload has fewer than that many stored bytes left to read, while
+        nothing of the host's is on its way in. The number of passes run."""
         end = self.clock.now + timeout
         usb = self.hw.usb
-        bus = self.hw.eeprom_bus
-        written = bus.writes()
         passes = 0
         while passes < max_passes and timeout > 0.0:
             self.run_passes(PASS_S, self.passes_planned(max(PASS_S, end - self.clock.now)))
             passes += 1
-            if chip_written is not None and bus.writes() != written:
-                written = bus.writes()
-                chip_written()
             if usb.in_flight or self.clock.now >= end or not self.working():
                 break
             if reader_margin > 0 and self.reader_near_upload_end(reader_margin):

@@ -332,10 +332,11 @@ class VirtualPrinter:
         self.save_chips()
 
     def run_for_host(self, timeout: float, reader_margin: int = 0) -> int:
-        """Firmware.run_for_host, the chips' files brought up to date after each pass
-        that wrote a chip (as run_pass does)."""
-        return self.firmware.run_for_host(timeout, self.save_chips,
-                                          reader_margin=reader_margin)
+        """Firmware.run_for_host, then the chips' files brought up to date: before the
+        host can have anything the run sent, its reply included."""
+        passes = self.firmware.run_for_host(timeout, reader_margin=reader_margin)
+        self.save_chips()
+        return passes
 
     def run_until(self, condition, timeout: float = 3600.0) -> bool:
         """Firmware.run_until, then the chips' files brought up to date (condition None:
