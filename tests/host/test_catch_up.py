@@ -37,6 +37,37 @@ def test_catch_up_points_are_the_lines_of_whole_chunks():
     assert set(catch_up_lines(data, 1)) == {128}
 
 
+def whole_chunk_lines(data: bytes) -> set[int]:
+    """The lines complete at the end of each whole 512-byte chunk, counted afresh."""
+    return {data[: 512 * k].count(b"\r") for k in range(1, len(data) // 512 + 1)}
+
+
+class Stop(Exception):
+    pass
+
+
+def test_an_upload_returns_the_catch_up_points_it_counted_and_a_resumed_one_all(virtual):
+    def job(pad: int) -> bytes:  # lines of uneven lengths: chunks end mid-line
+        return b"".join(b"M106 S%d%s\r" % (i % 250, b" " * (i * pad % 37))
+                        for i in range(900))
+
+    first, second = job(1), job(5)
+    assert len(first) % 512 and len(second) // 512 > 20
+    printer = connect(virtual)
+    sent = printer.send_file(first, "points", run=False)
+    assert set(sent.catch_up) == whole_chunk_lines(first)
+
+    def drop(done, total):
+        if done >= 10 * 512:
+            raise Stop  # the link goes once ten chunks are stored
+    with pytest.raises(Stop):
+        printer.send_file(second, "again", run=False, progress=drop)
+    resumed = printer.send_file(second, "again", run=False, resume=True)
+    assert resumed.first_chunk == 10 and not resumed.restarted
+    assert set(resumed.catch_up) == whole_chunk_lines(second)
+    assert virtual.firmware.file_system.read_committed(make_id("again")) == second
+
+
 def test_send_file_resumes_the_pause_of_a_job_that_caught_up(virtual):
     job = fast_job(2000)
     printer = connect(virtual)

@@ -314,7 +314,9 @@ def _upload(printer, file: str, job, file_id: str | None, resume: bool,
         wait = wait and sent.printing
         if wait:
             try:
-                _follow(printer, name, job.lines, catch_up_lines(source), quiet, as_json)
+                points = sent.catch_up if sent.catch_up is not None else \
+                    catch_up_lines(source)
+                _follow(printer, name, job.lines, points, quiet, as_json)
             except KeyboardInterrupt:
                 raise Interrupted(_interrupted_wait(printer, name)) from None
     if wait:

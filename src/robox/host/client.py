@@ -102,6 +102,8 @@ class Sent:
     restarted: bool
     printing: bool
     already_stored: bool = False  # `resume` found the upload finished: nothing was sent
+    #: the file's catch-up points, as the upload counted them (None: nothing was sent)
+    catch_up: CatchUpPoints | None = None
 
 
 class PrinterError(RoboxError):
@@ -510,7 +512,7 @@ class Printer:
         elif watch and not (held and held()):
             # a pause made while the last chunks were on their way stays until resumed
             self.resume_if_caught_up(name, caught_up_at, tell)
-        return Sent(first, restarted, start)
+        return Sent(first, restarted, start, catch_up=caught_up_at)
 
     def _store(self, frame: bytes, doing: str, stored: int) -> None:
         """Acknowledge a chunk (or the end) of an upload of which `stored` bytes are on
