@@ -236,17 +236,17 @@ class Printer:
             raise ProtocolError("a command is already in flight")
         self.in_flight = True
         try:
-            self.transport.write(frame, self.timeout)
+            transport, timeout = self.transport, self.timeout
+            transport.write(frame, timeout)
             self.commands_sent += 1
-            reply = b""
             expected = REPLY_TO.get(frame[0], 0xE3)
             # A report of fixed length in one read of whole packets (its last packet, a
             # short one or the one that fills the buffer, ends the transfer); any other
             # reply's first packet says its length, and the rest follows.
             fixed = FIXED_REPLY_LENGTH.get(expected)
             want = PACKET_SIZE if fixed is None else -(-fixed // PACKET_SIZE) * PACKET_SIZE
+            reply = transport.read(want, timeout)
             while True:
-                reply += self.transport.read(want, self.timeout)
                 if is_text(reply):
                     raise ProtocolError(f"the printer answered in text ({reply[:8]!r}), not "
                                         "a report: a text (Pronterface) host is using it or "
@@ -261,6 +261,7 @@ class Printer:
                     # the rest in one read of whole packets: the reply's last packet, a
                     # short one or the one that fills the buffer, ends the transfer
                     want = -(-(length - len(reply)) // PACKET_SIZE) * PACKET_SIZE
+                reply += transport.read(want, timeout)
             wire_log = _wire_log or wire_logger()
             if wire_log is not None and wire_log.isEnabledFor(20):  # logging.INFO
                 log_exchange(wire_log, frame, reply)

@@ -148,6 +148,9 @@ class UsbTransport(_PortLock):
         self._out_address = self.ep_out.bEndpointAddress
         self._in_address = self.ep_in.bEndpointAddress
         self._direct = _bulk_calls(device)
+        #: the arrays the backend reads into, one per size (a transfer copies out what
+        #: it got, so the next one may fill the same array)
+        self._buffers: dict[int, array] = {}
 
     def _translate(self, exc) -> TransportError:
         code = getattr(exc, "errno", None)
@@ -176,9 +179,13 @@ class UsbTransport(_PortLock):
             if self._direct is None:
                 return bytes(self.ep_in.read(max(limit, 64), timeout_ms))
             _, read, handle = self._direct
-            buffer = array("B", bytes(max(limit, 64)))
+            size = max(limit, 64)
+            buffer = self._buffers.get(size)
+            if buffer is None:
+                buffer = self._buffers[size] = array("B", bytes(size))
             count = read(handle, self._in_address, DATA_INTERFACE, buffer, timeout_ms)
-            return buffer[:count].tobytes()
+            data = buffer.tobytes()
+            return data if count == size else data[:count]
         except self._usb.core.USBError as exc:
             raise self._translate(exc) from None
 
