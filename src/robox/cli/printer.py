@@ -285,9 +285,10 @@ def _upload(printer, file: str, job, file_id: str | None, resume: bool,
                             enabled=quiet and not as_json)
 
             def progress(done: int, total: int) -> None:
-                bar.update(done - done_bytes[0])
+                if not as_json:  # (with --json neither the bar nor the ticker shows)
+                    bar.update(done - done_bytes[0])
+                    ticker.update(done)
                 done_bytes[0] = done
-                ticker.update(done)
 
             try:
                 sent = printer.send_file(source, name, resume=resume, progress=progress,
