@@ -60,6 +60,25 @@ HEAD_FEATURES: Final = {
     "prtd": ({b"RBXDV-S2"}, 6, 4, 4),
 }
 
+DUAL_MATERIAL: Final = 1
+TWO_FANS: Final = 2
+B_AXIS: Final = 4
+PRTD: Final = 8
+FEATURE_BITS: Final = {"dual_material": DUAL_MATERIAL, "two_fans": TWO_FANS, "b_axis": B_AXIS,
+                       "prtd": PRTD}
+
+
+def _type_features(name: bytes) -> int:
+    """The FEATURE_BITS a head type has: an old name that has it, or in the "RX" naming
+    scheme the character whose digit, masked, equals the feature's value."""
+    bits = 0
+    for feature, (old_names, at, mask, value) in HEAD_FEATURES.items():
+        if name in old_names or \
+                (name[:2] == b"RX" and ((name[at] - 0x30) & 0xFF) & mask == value):
+            bits |= FEATURE_BITS[feature]
+    return bits
+
+
 ERROR_BIT: Final = {
     EepromIndex.HEAD: ErrorBit.HEAD_EEPROM,
     EepromIndex.REEL0: ErrorBit.REEL0_EEPROM,
@@ -147,6 +166,11 @@ class Eeproms:
         self.firmware: Firmware | None = None
         self._limit_of: bytes | None = None  # the head type head_max_temperature last read
         self._limit = 0.0
+        # (asked at every heater sample, and kept for the head's bank they were read from:
+        # an immutable bytes object, replaced whenever the EEPROM changes)
+        self._features_of: bytes | None = None
+        self._features = 0  # FEATURE_BITS of the head's type
+        self._floats: dict[int, tuple[bytes, float]] = {}  # float_at's, by index and address
         self.initialise()
 
     def initialise(self) -> None:
@@ -355,7 +379,14 @@ class Eeproms:
         state = self.states[index]
         if state.status is not VALID:
             return default
-        return float8.parse(state.buffer[address : address + 8].split(b"\0", 1)[0])
+        bank = state.buffer
+        key = (int(index) << 16) | address
+        kept = self._floats.get(key)
+        if kept is not None and kept[0] is bank:
+            return kept[1]
+        value = float8.parse(bank[address : address + 8].split(b"\0", 1)[0])
+        self._floats[key] = (bank, value)
+        return value
 
     def write_float_at(self, index: EepromIndex, address: int, value: float) -> None:
         """Store `value` as printf("%f") cut to 8 characters. Like the firmware, this
@@ -373,26 +404,25 @@ class Eeproms:
         state = self.states[HEAD]
         return state.buffer[:8] if state.status is VALID else None
 
-    def _head_has(self, feature: str) -> bool:
-        name = self._head_type()
-        if name is None:
-            return False
-        old_names, at, mask, value = HEAD_FEATURES[feature]
-        if name in old_names:
-            return True
-        return name[:2] == b"RX" and ((name[at] - 0x30) & 0xFF) & mask == value
+    def _head_has(self, bit: int) -> bool:
+        state = self.states[HEAD]
+        bank = state.buffer if state.status is VALID else None
+        if bank is not self._features_of:
+            self._features = 0 if bank is None else _type_features(bank[:8])
+            self._features_of = bank
+        return self._features & bit != 0
 
     def head_dual_material(self) -> bool:
-        return self._head_has("dual_material")
+        return self._head_has(DUAL_MATERIAL)
 
     def head_has_two_fans(self) -> bool:
-        return self._head_has("two_fans")
+        return self._head_has(TWO_FANS)
 
     def head_has_b_axis(self) -> bool:
-        return self._head_has("b_axis")
+        return self._head_has(B_AXIS)
 
     def head_has_prtd(self) -> bool:
-        return self._head_has("prtd")
+        return self._head_has(PRTD)
 
     def head_max_temperature(self) -> float:
         name = self._head_type()

@@ -52,8 +52,9 @@ SINGLE_NOZZLE_APPROACH = (253.0, 71.0)
 DUAL_NOZZLE_APPROACH = (276.0, 55.0)
 HIGH_TEMP_NOZZLE_APPROACH = (434.0, 84.0)
 # the firmware's default controller gains (kp, ki, kd)
-GAINS: Final = {"nozzle": (0.08, 0.012, 0.55), "bed": (0.05, 0.006, 1.4),
-                "ambient": (0.1, 0.0, 0.0)}
+NOZZLE_GAINS: Final = (0.08, 0.012, 0.55)
+BED_GAINS: Final = (0.05, 0.006, 1.4)
+AMBIENT_GAINS: Final = (0.1, 0.0, 0.0)
 # the errors of a lost thermistor: the bed's, nozzle 0's, nozzle 1's
 _THERMISTOR_ERRORS: Final = [ErrorBit.BED_THERMISTOR, ErrorBit.NOZZLE0_THERMISTOR,
                              ErrorBit.NOZZLE1_THERMISTOR]
@@ -71,6 +72,7 @@ class Controller:
 
     def __init__(self, plant: str, target: list[float] | None = None) -> None:
         self.plant = plant
+        self.on_head = plant.startswith("nozzle")  # (not the bed's, nor the ambient's)
         self.mode = 0
         self.target = [0.0, 0.0] if target is None else target
         self.measured = 0.0
@@ -176,26 +178,30 @@ class Heaters:
         plants = self.fw.hw.machine.heaters
         limit = self.head_max_temperature()
         for nozzle in self.nozzle:
-            nozzle.target = [min(t, limit) for t in nozzle.target]
+            target = nozzle.target  # (clamped in place: no list made at every sample)
+            for i in range(len(target)):
+                if target[i] > limit:
+                    target[i] = limit
         self.ambient.measured = _read(plants["ambient"])
-        self._control(self.ambient, GAINS["ambient"], invert=True)
+        self._control(self.ambient, AMBIENT_GAINS, invert=True)
         self.nozzle[0].measured = _read(plants["nozzle0"])
         self.nozzle[1].measured = _read(plants["nozzle1"]) \
             if eeproms.head_dual_material() else 0.0
-        self._control(self.nozzle[0], GAINS["nozzle"])
+        self._control(self.nozzle[0], NOZZLE_GAINS)
         if eeproms.head_has_two_fans():
             self.nozzle[1].pwm_duty = self.head_fan_requested
         else:
-            self._control(self.nozzle[1], GAINS["nozzle"])
+            self._control(self.nozzle[1], NOZZLE_GAINS)
         self.bed.measured = _read(plants["bed"])
-        self._control(self.bed, GAINS["bed"])
+        self._control(self.bed, BED_GAINS)
         if max(self.nozzle[0].measured, self.nozzle[1].measured) >= \
                 HEAD_FAN_OVERRIDE_TEMPERATURE:
             self.head_fan_duty = max(self.head_fan_requested, HEAD_FAN_OVERRIDE_DUTY)
         else:
             self.head_fan_duty = self.head_fan_requested
         limit = eeproms.float_at(HEAD, 0x28, HEAD_DEFAULT_LIMIT)
-        if any(n.measured - limit >= HEAD_SHUTDOWN_THRESHOLD for n in self.nozzle):
+        if self.nozzle[0].measured - limit >= HEAD_SHUTDOWN_THRESHOLD or \
+                self.nozzle[1].measured - limit >= HEAD_SHUTDOWN_THRESHOLD:
             if self.head_power_on():
                 self.fw.errors.set(ErrorBit.HEAD_POWER_OVERTEMP)
             self.set_head_power(False)
@@ -259,7 +265,7 @@ class Heaters:
         plants = self.fw.hw.machine.heaters
         powered = self.head_power_on()
         for c in self.controllers():
-            on_head = c.plant.startswith("nozzle")
+            on_head = c.on_head
             duty = c.pwm_duty / 255.0
             if c is self.ambient or (on_head and not powered):
                 duty = 0.0
