@@ -195,6 +195,28 @@ def test_float_fields_for_the_firmware_itself():
     assert rig.eeproms.get_float(REEL, "remaining_filament") == float8.to_float32(239993.2)
 
 
+def test_a_float_read_follows_every_change_of_its_field():
+    """float_at, asked at every heater sample, reads the bank as it is now: after a
+    host's write, a change of the firmware's own, an unplug and a replug."""
+    rig = Rig(reel0=EepromChip(fmt.chip_image(reel_data(remaining_filament="240000"))))
+    assert rig.eeproms.float_at(REEL, 0xB8, -1.0) == -1.0  # not loaded yet: the default
+    rig.until(lambda: rig.eeproms.status(REEL) == Status.VALID)
+    assert rig.eeproms.float_at(REEL, 0xB8, -1.0) == 240000.0
+    assert rig.eeproms.float_at(REEL, 0xB8, -1.0) == 240000.0  # asked again: the same
+    rig.eeproms.host_write(REEL, 0xB8, b"1234.5\0\0")
+    assert rig.eeproms.float_at(REEL, 0xB8, -1.0) == float8.to_float32(1234.5)
+    rig.eeproms.write_float_at(REEL, 0xB8, 99.25)
+    assert rig.eeproms.float_at(REEL, 0xB8, -1.0) == 99.25
+    assert rig.eeproms.float_at(REEL, 0x50, -1.0) == float8.to_float32(1.75)  # another field
+    rig.bus.sockets[REEL].unplug()
+    rig.until(lambda: rig.eeproms.status(REEL) == Status.NOT_PRESENT)
+    assert rig.eeproms.float_at(REEL, 0xB8, -1.0) == -1.0
+    rig.bus.insert(REEL, EepromChip(fmt.chip_image(reel_data(remaining_filament="500"))))
+    rig.bus.sockets[REEL].clock = rig.clock
+    rig.until(lambda: rig.eeproms.status(REEL) == Status.VALID)
+    assert rig.eeproms.float_at(REEL, 0xB8, -1.0) == 500.0
+
+
 def test_all_quiet_is_each_eeprom_quiet_at_every_pass():
     """all_quiet(), asked on every pass, against quiet() of each EEPROM: through loading,
     verifying, a host's change rewritten, an empty socket, a good chip and a blank one

@@ -262,6 +262,43 @@ def test_a_nozzle_target_is_held_to_the_limit_of_the_head_fitted_now(wire):
         assert wire.fw.heaters.nozzle[0].target[0] == min(290.0, limit), type_code
 
 
+def _features_by_the_firmware_s_rule(type_code: str) -> tuple[bool, bool, bool, bool]:
+    """eeprom.c's does_head_have_*: an old type name, or an "RX" name's digit at 7
+    (dual material: & 3 == 2; two fans: & 4) or at 6 (B axis: & 1; PRTD: & 4)."""
+    name = type_code.encode().ljust(8, b"\0")[:8]
+    rx = name[:2] == b"RX"
+    at6, at7 = (name[6] - 0x30) & 0xFF, (name[7] - 0x30) & 0xFF
+    return (name == b"RBX01-DM" or (rx and at7 & 3 == 2),
+            name == b"RBXDV-S3" or (rx and at7 & 4 != 0),
+            name in (b"RBX01-SM", b"RBX01-S2", b"RBX01-DM") or (rx and at6 & 1 != 0),
+            name == b"RBXDV-S2" or (rx and at6 & 4 == 4))
+
+
+def test_the_head_s_features_follow_the_head_fitted_now(wire):
+    """Dual material, two fans, a B axis and a PRTD, asked at every heater sample, are
+    the type's of the head fitted now: heads swapped back and forth, and none."""
+    from robox.hardware.eeprom import EepromChip
+
+    eeproms = wire.fw.eeproms
+    bus = wire.printer.hw.eeprom_bus
+    for type_code in ("RBX01-DM", "RBX01-SM", "RBXDV-S3", "RBXDV-S2", "RBX01-S2", "RBXDV-S1",
+                      "RX000012", "RX000154", "RX000046", "RX0000A7", "RX000022", "RBX01-DM",
+                      None, "RX000155"):
+        bus.insert(EepromIndex.HEAD, None)
+        wire.printer.run_until(lambda: eeproms.status(EepromIndex.HEAD) == 0, 5.0)
+        if type_code is None:
+            assert (eeproms.head_dual_material(), eeproms.head_has_two_fans(),
+                    eeproms.head_has_b_axis(), eeproms.head_has_prtd()) == (False,) * 4
+            continue
+        bus.insert(EepromIndex.HEAD, EepromChip(images.head_eeprom(True, type_code),
+                                                wire.printer.hw.clock))
+        wire.printer.run_until(lambda: eeproms.status(EepromIndex.HEAD) == 2, 5.0)
+        for _ in range(2):  # (asked twice: the second answer is the one kept)
+            assert (eeproms.head_dual_material(), eeproms.head_has_two_fans(),
+                    eeproms.head_has_b_axis(), eeproms.head_has_prtd()) == \
+                _features_by_the_firmware_s_rule(type_code), type_code
+
+
 def test_losing_the_head_eeprom_cuts_head_power(wire):
     run_lines(wire, "M104 S200", "M140 S60")
     wire.printer.hw.eeprom_bus.sockets[EepromIndex.HEAD].unplug()
