@@ -51,31 +51,28 @@ TIMEOUT_S: Final = 0.2
 UPDATE_PERIOD_S: Final = 7.2
 QUIET_STEP_S: Final = 0.01
 
-#: What a head type has: the old type names that have it, and in the "RX" naming scheme
-#: the character position whose digit, masked, must equal a value.
-HEAD_FEATURES: Final = {
-    "dual_material": ({b"RBX01-DM"}, 7, 3, 2),
-    "two_fans": ({b"RBXDV-S3"}, 7, 4, 4),
-    "b_axis": ({b"RBX01-SM", b"RBX01-S2", b"RBX01-DM"}, 6, 1, 1),
-    "prtd": ({b"RBXDV-S2"}, 6, 4, 4),
-}
-
+#: The features a head type can have (bits of Eeproms._head_has).
 DUAL_MATERIAL: Final = 1
 TWO_FANS: Final = 2
 B_AXIS: Final = 4
 PRTD: Final = 8
-FEATURE_BITS: Final = {"dual_material": DUAL_MATERIAL, "two_fans": TWO_FANS, "b_axis": B_AXIS,
-                       "prtd": PRTD}
+#: Which type has each: the old type names that have it, and in the "RX" naming scheme
+#: the character position whose digit, masked, must equal a value.
+HEAD_FEATURES: Final = (
+    (DUAL_MATERIAL, {b"RBX01-DM"}, 7, 3, 2),
+    (TWO_FANS, {b"RBXDV-S3"}, 7, 4, 4),
+    (B_AXIS, {b"RBX01-SM", b"RBX01-S2", b"RBX01-DM"}, 6, 1, 1),
+    (PRTD, {b"RBXDV-S2"}, 6, 4, 4),
+)
 
 
 def _type_features(name: bytes) -> int:
-    """The FEATURE_BITS a head type has: an old name that has it, or in the "RX" naming
-    scheme the character whose digit, masked, equals the feature's value."""
+    """The features (bits) of a head of type `name`, its first 8 bytes."""
     bits = 0
-    for feature, (old_names, at, mask, value) in HEAD_FEATURES.items():
+    for bit, old_names, at, mask, value in HEAD_FEATURES:
         if name in old_names or \
                 (name[:2] == b"RX" and ((name[at] - 0x30) & 0xFF) & mask == value):
-            bits |= FEATURE_BITS[feature]
+            bits |= bit
     return bits
 
 
@@ -169,7 +166,7 @@ class Eeproms:
         # (asked at every heater sample, and kept for the head's bank they were read from:
         # an immutable bytes object, replaced whenever the EEPROM changes)
         self._features_of: bytes | None = None
-        self._features = 0  # FEATURE_BITS of the head's type
+        self._features = 0  # the head type's features (DUAL_MATERIAL and the rest)
         self._floats: dict[int, tuple[bytes, float]] = {}  # float_at's, by index and address
         self.initialise()
 
