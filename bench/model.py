@@ -27,9 +27,10 @@ again and again for a CPU second, timed beside each run it is compared with:
    virtual printer with its deposition record): lines/s and the ratio;
 4. the served printer (`robox-cli sim serve`, what `--device sim` and OctoPrint use):
    the whole path of 2. through the way in robox-cli takes (its Unix socket, or its
-   pseudo-terminal where it has none), beside the in-process rate, with
-   the server's CPU seconds and each run's count of catch-up pauses the host resumed
-   (a job printed from its own upload that met the upload's end); and a 100 KB
+   pseudo-terminal where it has none), each run at once after an in-process run of
+   2. and its rate given as a share of that run's, with the server's CPU seconds
+   and each run's count of catch-up pauses the host resumed (a job printed from its
+   own upload that met the upload's end); and a 100 KB
    upload to a printer paced at 1x and 10x the wall clock, the same way and over its
    pseudo-terminal (as a serial host sends it), beside its transfer limit (one 64-byte
    packet of the host's frames crosses the bus in each 1 ms pass) and beside the
@@ -44,7 +45,9 @@ own, or the child's) and simulated time over each.
 The whole path, simulate and the served figures (2. to 4.) run `--repeat` times
 (default 3), each on a fresh state: their figures are the medians, and the ratio's
 range over the runs is given beside it, since a run of a few seconds moves with
-whatever else the machine does (two processes talking to each other, more so).
+whatever else the machine does (two processes talking to each other, more so: so
+each served run is compared with the in-process run made just before it, and the
+share given is the median over those rounds).
 
 Asserts nothing.
 """
@@ -265,22 +268,49 @@ def fresh_state(tmp: Path, loaded: bool) -> Path:
     return state
 
 
-def whole_path(path: Path, loaded: bool, repeat: int) -> tuple[float, float]:
+def in_process_run(path: Path, loaded: bool) -> tuple[float, float, float, dict]:
     """robox-cli send-job --wait on a fresh state directory (filament in its feed unless
-    `loaded` is False), in its own process, `repeat` times; the peak resident memory in
-    MB (the largest), and the median rate in lines per wall second."""
+    `loaded` is False), in its own process: its wall and CPU seconds, its peak resident
+    memory in MB and its JSON summary."""
+    with tempfile.TemporaryDirectory() as tmp:
+        state = fresh_state(Path(tmp), loaded)
+        start = time.perf_counter()
+        out, peak, cpu, _ = robox_cli("--device", f"sim-once:{state}", "send-job",
+                                      str(path), "--wait", "--json")
+        wall = time.perf_counter() - start
+    return wall, cpu, peak, json.loads(out)
+
+
+def served_run(path: Path, loaded: bool) -> tuple[float, float, float, dict]:
+    """The same to a printer served as fast as it can run (`sim serve`), through the way
+    in robox-cli takes: its wall seconds, the host's and the server's CPU seconds and the
+    JSON summary."""
+    with tempfile.TemporaryDirectory() as tmp:
+        state = fresh_state(Path(tmp), loaded)
+        with served_printer(state) as pid:
+            server0 = server_cpu(pid)
+            start = time.perf_counter()
+            out, _, host, _ = robox_cli("--device", f"sim:{state}", "send-job", str(path),
+                                        "--wait", "--json")
+            wall = time.perf_counter() - start
+            server = server_cpu(pid) - server0
+    return wall, host, server, json.loads(out)
+
+
+def whole_path(path: Path, loaded: bool, repeat: int) -> float:
+    """The whole path in process and served, `repeat` rounds of three runs: the trivial
+    loop, the in-process run, then the served one at once after it, so that the served
+    printer is compared with an in-process run made in the same moment of the machine
+    (two processes talking to each other move more with what else it does than one).
+    Prints the medians, the ratio's range and the served share's (each round's served
+    rate over its own in-process rate); returns the peak resident memory in MB."""
     with open(path, "rb") as f:
         lines = sum(1 for _ in f)
     walls, cpus, plains, ratios, peaks, errors = [], [], [], [], [], set()
+    served_walls, shares, hosts, servers, catch_ups, served_errors = [], [], [], [], [], set()
     for _ in range(repeat):
         plain = plain_loop_rate(path)
-        with tempfile.TemporaryDirectory() as tmp:
-            state = fresh_state(Path(tmp), loaded)
-            start = time.perf_counter()
-            out, peak, cpu, _ = robox_cli("--device", f"sim-once:{state}", "send-job",
-                                          str(path), "--wait", "--json")
-            wall = time.perf_counter() - start
-        summary = json.loads(out)
+        wall, cpu, peak, summary = in_process_run(path, loaded)
         simulated = summary["simulated_print_time_s"]  # (the same in every run)
         errors.update(summary["errors"])
         walls.append(wall)
@@ -288,6 +318,13 @@ def whole_path(path: Path, loaded: bool, repeat: int) -> tuple[float, float]:
         plains.append(plain)
         ratios.append(lines / cpu / plain)
         peaks.append(peak)
+        served_wall, host, server, summary = served_run(path, loaded)
+        served_errors.update(summary["errors"])
+        served_walls.append(served_wall)
+        shares.append(wall / served_wall)
+        hosts.append(host)
+        servers.append(server)
+        catch_ups.append(summary["catch_up_resumes"])
     wall, cpu, plain = (statistics.median(v) for v in (walls, cpus, plains))
     print(f"PrusaSlicer G-code {path.name}: {path.stat().st_size / 1e6:.2f} MB, {lines} "
           "lines, through robox-cli --device sim-once:DIR send-job --wait "
@@ -298,7 +335,16 @@ def whole_path(path: Path, loaded: bool, repeat: int) -> tuple[float, float]:
           f"{simulated / wall:,.0f}x, / CPU = {simulated / cpu:,.0f}x; "
           f"peak RSS {max(peaks):.0f} MB; errors {', '.join(sorted(errors)) or 'none'}")
     loop_share(path, lines, loaded, plain)
-    return max(peaks), lines / wall
+    served = statistics.median(served_walls)
+    spread = (f" ({min(shares):.0%}-{max(shares):.0%} over {repeat} rounds)"
+              if repeat > 1 else "")
+    print(f"  served (sim serve, robox-cli's way in): {served:.2f} s wall, "
+          f"{lines / served:,.0f} lines/s; {statistics.median(shares):.0%} of the rate of the "
+          f"in-process run just before it{spread}; CPU: host "
+          f"{statistics.median(hosts):.2f} s, server {statistics.median(servers):.2f} s; "
+          f"catch-up pauses resumed {', '.join(map(str, catch_ups))}; "
+          f"errors {', '.join(sorted(served_errors)) or 'none'}")
+    return max(peaks)
 
 
 #: The ratio to the trivial loop that issue 41 sets as the goal.
@@ -337,40 +383,6 @@ def served_printer(state: Path, *options: str):
         yield served_record(state)["pid"]
     finally:
         robox_cli("sim", "stop", "--state", str(state))
-
-
-def served_whole_path(path: Path, loaded: bool, in_process_rate: float,
-                      repeat: int) -> None:
-    """`send-job --wait` to a printer served as fast as it can run, `repeat` times, each
-    on a fresh state: the median wall time, and the range of the rate over the runs
-    (two processes on a shared machine move more from run to run than one)."""
-    with open(path, "rb") as f:
-        lines = sum(1 for _ in f)
-    walls, hosts, servers, catch_ups, errors = [], [], [], [], set()
-    for _ in range(repeat):
-        with tempfile.TemporaryDirectory() as tmp:
-            state = fresh_state(Path(tmp), loaded)
-            with served_printer(state) as pid:
-                server0 = server_cpu(pid)
-                start = time.perf_counter()
-                out, _, cpu, _ = robox_cli("--device", f"sim:{state}", "send-job",
-                                           str(path), "--wait", "--json")
-                walls.append(time.perf_counter() - start)
-                servers.append(server_cpu(pid) - server0)
-        hosts.append(cpu)
-        summary = json.loads(out)
-        errors.update(summary["errors"])
-        catch_ups.append(summary["catch_up_resumes"])
-    wall = statistics.median(walls)
-    rate = lines / wall
-    spread = (f" ({lines / max(walls) / in_process_rate:.0%}-"
-              f"{lines / min(walls) / in_process_rate:.0%} over {repeat} runs)"
-              if repeat > 1 else "")
-    print(f"  served (sim serve, robox-cli's way in): {wall:.2f} s wall, {rate:,.0f} lines/s, "
-          f"{rate / in_process_rate:.0%} of the in-process rate{spread}; CPU: host "
-          f"{statistics.median(hosts):.2f} s, server {statistics.median(servers):.2f} s; "
-          f"catch-up pauses resumed {', '.join(map(str, catch_ups))}; "
-          f"errors {', '.join(sorted(errors)) or 'none'}")
 
 
 def upload_text(size: int) -> bytes:
@@ -535,9 +547,7 @@ def main() -> None:
         return
     peaks = []
     for prusa in paths:
-        peak, rate = whole_path(prusa, loaded, repeat)
-        peaks.append(peak)
-        served_whole_path(prusa, loaded, rate, repeat)
+        peaks.append(whole_path(prusa, loaded, repeat))
         if loaded:
             simulate_path(prusa, repeat)
     if len(peaks) == 2:
