@@ -129,12 +129,13 @@ class RoboxPlugin:
         # the job is prepared first, so that its id follows send-job's rule (name and
         # the prepared content's SHA-1); it is uploaded in the background
         options = None
-        if inspect(path).from_slicer:
+        detected = inspect(path)
+        if detected.from_slicer:
             from robox.cli.printer import printer_options
 
             options = printer_options(link.printer, None, None, None)
         prepared = contextlib.ExitStack()
-        job = prepared.enter_context(job_file(path, options))
+        job = prepared.enter_context(job_file(path, options, detected))
         try:
             job.refuse_long_lines()  # before the first chunk, as send-job does
         except BaseException:

@@ -195,7 +195,7 @@ def send_job_cmd(ctx, file: str, file_id: str | None, wait: bool, resume: bool, 
         if not raw and (detected.from_slicer or macros is not None):  # (macros expanded)
             options = printer_options(printer, filament_diameter, nozzle, macros, valve,
                                       volumes)
-        with job_file(file, options) as job:
+        with job_file(file, options, detected) as job:
             if job.translation is not None and job.translation.passthrough and not as_json:
                 click.echo(f"a Robox job: sent as it is, {job.translation.macros} macro "
                            f"line(s) expanded from {macros}", err=True)

@@ -113,7 +113,7 @@ def put_cmd(image: str, file: str, file_id: str | None, job: bool, raw: bool, he
             options = Options(filament_diameter=(filament_diameter,) * 2, head=head,
                               nozzle=nozzle, macros=macros, valve=valve,
                               ejection=parse_ejection(ejection))
-        with job_file(file, options) as prepared:
+        with job_file(file, options, detected) as prepared:
             prepared.refuse_long_lines()
             largest = images.largest_file(image)
             if prepared.size > largest:

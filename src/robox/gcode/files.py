@@ -40,8 +40,16 @@ def inspect(path: str | os.PathLike) -> Detected:
 
 
 @contextlib.contextmanager
-def _lines(source: str | os.PathLike) -> Iterator[tuple[Iterator[bytes], Detected]]:
+def _lines(source: str | os.PathLike, detected: Detected | None = None
+           ) -> Iterator[tuple[Iterator[bytes], Detected]]:
+    """The lines of `source`, and what it is. With `detected`, what inspect() found in it
+    a moment before: its head and tail are not read and judged again."""
     with open_input(source, "a G-code file") as handle:
+        if detected is not None:
+            if handle.read(len(BOM)) != BOM:
+                handle.seek(0)
+            yield split_lines(read_chunks(handle)), detected
+            return
         head, tail = _sniff(handle)
         if head.startswith(BOM):  # a file a Windows editor saved: the mark is not G-code
             head = head[len(BOM):]
@@ -92,8 +100,8 @@ def _write_job(lines: Iterable[bytes], target: str | os.PathLike,
 
 
 def _roboxise(source: str | os.PathLike, target: str | os.PathLike, options: Options,
-              end: bytes) -> tuple[Summary, Written]:
-    with _lines(source) as (lines, detected):
+              end: bytes, detected: Detected | None = None) -> tuple[Summary, Written]:
+    with _lines(source, detected) as (lines, detected):
         refuse_overwriting(target, source)
         translated, summary = translate(lines, options, detected)
         if end == FILE_LINE_END:  # a file a person keeps: marked a Robox job
@@ -109,8 +117,9 @@ def roboxise_file(source: str | os.PathLike, target: str | os.PathLike,
     return _roboxise(source, target, options, end)[0]
 
 
-def _strip(source: str | os.PathLike, target: str | os.PathLike) -> Written:
-    with _lines(source) as (lines, _):
+def _strip(source: str | os.PathLike, target: str | os.PathLike,
+           detected: Detected | None = None) -> Written:
+    with _lines(source, detected) as (lines, _):
         refuse_overwriting(target, source)
         return _write_job(_no_macros(source, map(code_part, lines)), target)
 
@@ -170,16 +179,19 @@ def _first_long_line(job: Path) -> tuple[int, int]:
 
 
 @contextlib.contextmanager
-def job_file(source: str | os.PathLike, options: Options | None) -> Iterator[JobFile]:
+def job_file(source: str | os.PathLike, options: Options | None,
+             detected: Detected | None = None) -> Iterator[JobFile]:
     """The Robox job for `source` in a temporary file, removed afterwards: translated
-    with `options`, or with None as it is (comments stripped). Memory stays flat."""
+    with `options`, or with None as it is (comments stripped). Memory stays flat.
+    `detected`: what inspect() found in `source` (the caller chose `options` by it), so
+    that the file's head and tail are not read and judged a second time."""
     with tempfile.TemporaryDirectory(prefix="robox-job-") as directory:
         target = Path(directory) / "job.gcode"
         summary = None
         if options is None:
-            written = _strip(source, target)
+            written = _strip(source, target, detected)
         else:
-            summary, written = _roboxise(source, target, options, CARD_LINE_END)
+            summary, written = _roboxise(source, target, options, CARD_LINE_END, detected)
         # (counted as it was written: the file is not read again)
         lines, longest = written.lines, written.longest
         if not lines:

@@ -177,7 +177,7 @@ def _prepared(source: str | os.PathLike, setup: Setup, kind: str
         options = Options(filament_diameter=(setup.filament_diameter,) * 2, head=setup.head,
                           nozzle=setup.nozzle, macros=setup.macros, valve=setup.valve,
                           ejection=setup.ejection)
-    with job_file(source, options) as job, \
+    with job_file(source, options, detected) as job, \
             tempfile.TemporaryDirectory(prefix="robox-simulate-") as state:
         virtual = _make_printer(Path(state), setup, kind, job)
         try:
